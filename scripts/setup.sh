@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Idempotent set-up on a fresh Debian bookworm machine: PyODE from Debian, a .venv with the
+# project and its dev extras, and only the `ode` module of Debian's dist-packages visible in it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+ODE_SO_GLOB="/usr/lib/python3/dist-packages/ode.cpython-311-*.so"
+
+if ! compgen -G "$ODE_SO_GLOB" >/dev/null; then
+    echo "setup: installing Debian's python3-pyode"
+    SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-pyode libode-dev >/dev/null
+fi
+
+if [ ! -x .venv/bin/python ]; then
+    echo "setup: creating .venv"
+    "$PY" -m venv .venv
+fi
+
+# Expose only the ode extension module (not all of Debian's dist-packages) through a folder
+# holding a link to it, named in a .pth file.
+SITE=$(.venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+mkdir -p .venv/pyode
+ln -sf $(compgen -G "$ODE_SO_GLOB" | head -1) .venv/pyode/
+echo "$(pwd)/.venv/pyode" > "$SITE/pyode.pth"
+
+STAMP=.venv/.installed
+if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ]; then
+    echo "setup: installing the project into .venv"
+    .venv/bin/pip install -q --upgrade pip
+    .venv/bin/pip install -q -e '.[dev]'
+    touch "$STAMP"
+fi
+.venv/bin/python -c 'import ode, numba, cma' || { echo "setup: imports failed" >&2; exit 1; }
