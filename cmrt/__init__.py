@@ -1,0 +1,1 @@
+"""CMRT service: command line entry point and settings."""

@@ -1,0 +1,187 @@
+"""Plain, frozen records returned by the repository (never ORM objects) and job states.
+
+Timestamps are timezone-aware UTC datetimes. JSON-valued fields hold plain lists and dicts;
+treat them as read-only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+# ---- job states -------------------------------------------------------------------------
+QUEUED = "queued"
+RUNNING = "running"
+CONVERGED = "converged"
+STOPPED = "stopped"
+FAILED = "failed"
+CANCELLED = "cancelled"
+
+JOB_STATUSES: tuple[str, ...] = (QUEUED, RUNNING, CONVERGED, STOPPED, FAILED, CANCELLED)
+TERMINAL_STATUSES: frozenset[str] = frozenset({CONVERGED, STOPPED, FAILED, CANCELLED})
+
+#: Legal status changes: queued -> running -> converged | stopped | failed | cancelled;
+#: a queued job may also be cancelled or failed before it ever runs.
+TRANSITIONS: Mapping[str, frozenset[str]] = {
+    QUEUED: frozenset({RUNNING, FAILED, CANCELLED}),
+    RUNNING: frozenset({CONVERGED, STOPPED, FAILED, CANCELLED}),
+    CONVERGED: frozenset(),
+    STOPPED: frozenset(),
+    FAILED: frozenset(),
+    CANCELLED: frozenset(),
+}
+
+# ---- evaluation states ------------------------------------------------------------------
+PENDING = "pending"
+DONE = "done"
+EVAL_FAILED = "failed"
+EVAL_STATUSES: tuple[str, ...] = (PENDING, DONE, EVAL_FAILED)
+
+
+@dataclass(frozen=True)
+class JobRecord:
+    id: str
+    name: str
+    family: str
+    task: str
+    spec: dict[str, Any]
+    seed: int | None
+    workers: int
+    status: str
+    stop_rule: str | None
+    error: str | None
+    basis_id: str | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    #: Lowest objective recorded over all generations (None before the first generation).
+    best_objective: float | None
+    #: Parameter vector of `best_objective`, if the driver passed it to `record_generation`.
+    best_params: list[float] | None
+    #: Cumulative evaluations after the latest recorded generation.
+    evaluations: int
+    #: Number of recorded generations (= latest iteration + 1).
+    iterations: int
+    cancel_requested: bool
+    driver_owner: str | None
+    lease_expires_at: datetime | None
+    heartbeat_at: datetime | None
+
+    @property
+    def terminal(self) -> bool:
+        return self.status in TERMINAL_STATUSES
+
+
+@dataclass(frozen=True)
+class GenerationRecord:
+    job_id: str
+    #: 0-based generation number.
+    iteration: int
+    best: float
+    median: float
+    worst: float
+    sigma: float
+    best_so_far: float
+    #: Cumulative evaluations of the job after this generation.
+    evaluations: int
+    wall_time: float
+    #: The asked parameter vectors of this generation, in index order.
+    candidates: list[list[float]]
+    #: Pickled optimizer after telling this generation; None when not requested.
+    optimizer_state: bytes | None
+    created_at: datetime
+
+
+@dataclass(frozen=True)
+class EvaluationRecord:
+    job_id: str
+    generation: int
+    index: int
+    params: list[float] | None
+    status: str
+    objective: float | None
+    fell: bool | None
+    attempts: int
+    cpu_seconds: float | None
+    error: str | None
+    details: dict[str, Any] | None
+    created_at: datetime
+    updated_at: datetime
+
+
+@dataclass(frozen=True)
+class GenerationCounts:
+    """How many evaluations of one generation are in each state."""
+
+    pending: int = 0
+    done: int = 0
+    failed: int = 0
+
+    @property
+    def total(self) -> int:
+        return self.pending + self.done + self.failed
+
+    @property
+    def resolved(self) -> int:
+        """Evaluations that will not change any more (done or failed)."""
+        return self.done + self.failed
+
+
+@dataclass(frozen=True)
+class EvaluationOutcome:
+    """What `record_evaluation` did.
+
+    `changed` is True only for the one write that moved the evaluation out of `pending`
+    (a repeated write for the same key returns False and the stored record). `counts` are the
+    generation's counts right after this write, taken under the same lock, so exactly one
+    `changed` write observes `counts.resolved == population` for a generation.
+    """
+
+    record: EvaluationRecord
+    changed: bool
+    counts: GenerationCounts
+
+
+@dataclass(frozen=True)
+class CmrtRecord:
+    id: str
+    family: str
+    #: {"model": ..., "height": ..., "mass": ...}
+    character: dict[str, Any]
+    #: Library keys of the task, e.g. {"duration": 0.4, "force": 250.0}.
+    task_parameters: dict[str, float]
+    preparation: float
+    duration: float
+    decay: float
+    #: The optimised parameter vector in [0, 1]^d.
+    params: list[float]
+    #: Decoded spline knot times (s) and control values (m).
+    knots: list[float]
+    values: list[Any]
+    #: Sampled curve, as produced by optim (e.g. {"t": [...], "x": [...]}).
+    curve: Any
+    objective: float
+    objective_without: float | None
+    fell: bool
+    fell_without: bool | None
+    job_id: str | None
+    spec: dict[str, Any] | None
+    created_at: datetime
+
+
+@dataclass(frozen=True)
+class BasisRecord:
+    id: str
+    family: str
+    k: int
+    mean: list[float]
+    #: k rows of length d.
+    components: list[list[float]]
+    variance_explained: list[float]
+    #: Ids of the library CMRTs the basis was fitted on.
+    members: list[str]
+    #: Bounds of the reduced coordinates, e.g. {"low": [...], "high": [...]}.
+    box: Any
+    created_at: datetime
