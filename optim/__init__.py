@@ -1,0 +1,14 @@
+"""Numerics of the CMRT service: no web, queue or database code.
+
+Modules:
+    optim.spline       the CMRT spline and its [0, 1]^d parameter encoding
+    optim.cmaes        CMA-ES wrapper (own RNG, picklable) and the paper's stopping rules
+    optim.executors    serial / process-pool evaluation of candidate batches
+    optim.objective    the simulation objective (one Simulator per process)
+    optim.run          the ask/tell loop with atomic checkpoints and resume
+    optim.result       OptimizationResult (JSON file format)
+    optim.pca          PCA basis of a family of results, reduced-space search
+    optim.interpolate  interpolation of results along a task parameter
+    optim.superpose    superposition of time-shifted CMRTs
+    optim.errors       domain exceptions
+"""
