@@ -1,0 +1,65 @@
+"""Persistence: SQLAlchemy models behind a small repository interface, Alembic migrations.
+
+    from store import open_repository
+    repo = open_repository()            # URL from CMRT_DATABASE_URL; migrates to head
+    job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
+                          family=spec.family_name, task=spec.task, seed=1, workers=2)
+
+See `store.repository.Repository` for the contract. No web or queue imports here.
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import Engine
+
+from store.db import init_db, make_engine, session_scope
+from store.errors import Conflict, InvalidTransition, NotFound, StoreError
+from store.records import (
+    JOB_STATUSES,
+    TERMINAL_STATUSES,
+    TRANSITIONS,
+    BasisRecord,
+    CmrtRecord,
+    EvaluationOutcome,
+    EvaluationRecord,
+    GenerationCounts,
+    GenerationRecord,
+    JobRecord,
+)
+from store.repository import Repository, SqlRepository
+
+
+def open_repository(url: str | None = None, *, migrate: bool = True) -> SqlRepository:
+    """A SqlRepository on `url` (default: the settings' database_url), migrated to the newest
+    schema unless `migrate` is False. Call once per process (after forking, not before)."""
+    if url is None:
+        from cmrt.settings import get_settings
+
+        url = get_settings().database_url
+        assert url is not None
+    engine: Engine = init_db(url) if migrate else make_engine(url)
+    return SqlRepository(engine)
+
+
+__all__ = [
+    "JOB_STATUSES",
+    "TERMINAL_STATUSES",
+    "TRANSITIONS",
+    "BasisRecord",
+    "CmrtRecord",
+    "Conflict",
+    "EvaluationOutcome",
+    "EvaluationRecord",
+    "GenerationCounts",
+    "GenerationRecord",
+    "InvalidTransition",
+    "JobRecord",
+    "NotFound",
+    "Repository",
+    "SqlRepository",
+    "StoreError",
+    "init_db",
+    "make_engine",
+    "open_repository",
+    "session_scope",
+]
