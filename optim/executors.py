@@ -1,0 +1,230 @@
+"""Evaluate a batch of candidates: in this process, or in a local process pool.
+
+Contracts:
+  * `Executor.map(fn, batch)` returns one `EvalOutcome` per candidate, in batch order.
+    `fn(params) -> EvalOutcome | float` must be deterministic and, for `PoolExecutor`,
+    picklable (a top-level function or an instance of a top-level class such as
+    `optim.objective.SimObjective`). A plain float return is wrapped into an outcome.
+  * An exception raised by `fn` for one candidate does not fail the batch: that candidate's
+    outcome has `error` set (type and message), `objective = FAILED_OBJECTIVE`, `fell = False`.
+    Both executors do this identically, so the same seed gives the same optimisation whether
+    candidates are evaluated serially or by any number of workers.
+  * `PoolExecutor` raises `EvaluationError` (never hangs) when a worker process dies
+    (BrokenProcessPool) or a batch exceeds its timeout; the broken pool is torn down (its
+    processes killed) and a fresh one is started by the next `map`.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import multiprocessing
+import os
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from concurrent.futures.process import BrokenProcessPool
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from optim.errors import EvaluationError
+from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
+
+#: Default wall-clock limit for one batch in a process pool, seconds (None = no limit).
+DEFAULT_BATCH_TIMEOUT_S: float | None = None
+#: Wall-clock limit for starting the pool's worker processes (imports), seconds.
+STARTUP_TIMEOUT_S = 120.0
+#: Start method of pool workers: "spawn" (no forked threads or ODE state; works everywhere).
+DEFAULT_START_METHOD = "spawn"
+
+
+Objective = Callable[[np.ndarray], "EvalOutcome | float"]
+
+
+def evaluate_one(fn: Objective, params: np.ndarray) -> EvalOutcome:
+    """Run `fn(params)`, turning a float into an outcome and an exception into an error outcome."""
+    t0 = time.process_time()
+    try:
+        out = fn(params)
+    except Exception as err:  # noqa: BLE001 - reported per candidate, see module docstring
+        return EvalOutcome(
+            objective=FAILED_OBJECTIVE,
+            fell=False,
+            cpu_seconds=time.process_time() - t0,
+            error=f"{type(err).__name__}: {err}",
+        )
+    if isinstance(out, EvalOutcome):
+        return out
+    return EvalOutcome(objective=float(out), cpu_seconds=time.process_time() - t0)
+
+
+def _ping() -> int:
+    return os.getpid()
+
+
+class Executor(ABC):
+    """Evaluates batches of candidates; a context manager (`close()` on exit)."""
+
+    @abstractmethod
+    def map(self, fn: Objective, batch: Sequence[np.ndarray]) -> list[EvalOutcome]:
+        """One outcome per candidate, in order (see module docstring)."""
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release workers; the executor must not be used afterwards."""
+
+    @property
+    def workers(self) -> int:
+        return 1
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class SerialExecutor(Executor):
+    """Evaluates candidates one after the other in the calling process."""
+
+    def map(self, fn: Objective, batch: Sequence[np.ndarray]) -> list[EvalOutcome]:
+        return [evaluate_one(fn, np.asarray(x, dtype=float)) for x in batch]
+
+
+class PoolExecutor(Executor):
+    """A `concurrent.futures.ProcessPoolExecutor` of `workers` processes, reused across batches.
+
+    timeout: wall-clock seconds allowed for one whole batch (None: no limit). A timeout or a
+    dead worker raises `EvaluationError`; see module docstring.
+    """
+
+    def __init__(
+        self,
+        workers: int | None = None,
+        *,
+        timeout: float | None = DEFAULT_BATCH_TIMEOUT_S,
+        start_method: str = DEFAULT_START_METHOD,
+    ) -> None:
+        n = workers if workers is not None else (os.cpu_count() or 1)
+        if n < 1:
+            raise ValueError(f"PoolExecutor needs at least 1 worker, got {n}")
+        if timeout is not None and timeout <= 0:
+            raise ValueError("PoolExecutor timeout must be positive seconds or None")
+        self._workers = int(n)
+        self._timeout = timeout
+        self._ctx = multiprocessing.get_context(start_method)
+        self._pool: cf.ProcessPoolExecutor | None = None
+        self._closed = False
+
+    @property
+    def workers(self) -> int:
+        return self._workers
+
+    def _get_pool(self) -> cf.ProcessPoolExecutor:
+        if self._closed:
+            raise EvaluationError("PoolExecutor is closed")
+        if self._pool is None:
+            self._pool = cf.ProcessPoolExecutor(max_workers=self._workers, mp_context=self._ctx)
+            self._warm_up()
+        return self._pool
+
+    def _warm_up(self) -> None:
+        """Start the workers (imports) before any batch timer runs (STARTUP_TIMEOUT_S)."""
+        assert self._pool is not None
+        futures = [self._pool.submit(_ping) for _ in range(self._workers)]
+        done, not_done = cf.wait(futures, timeout=STARTUP_TIMEOUT_S)
+        try:
+            if not_done:
+                raise EvaluationError(
+                    f"worker processes did not start within {STARTUP_TIMEOUT_S:g} s"
+                )
+            for fut in done:
+                fut.result()
+        except BrokenProcessPool:
+            self._kill_pool()
+            raise EvaluationError("a worker process died while starting") from None
+        except EvaluationError:
+            self._kill_pool()
+            raise
+
+    def _kill_pool(self) -> None:
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        procs = list(getattr(pool, "_processes", {}).values())  # private, but the only handle
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.kill()
+        with contextlib.suppress(Exception):
+            pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.join(timeout=5.0)
+
+    def map(self, fn: Objective, batch: Sequence[np.ndarray]) -> list[EvalOutcome]:
+        if len(batch) == 0:
+            return []
+        pool = self._get_pool()
+        try:
+            futures = [pool.submit(evaluate_one, fn, np.asarray(x, dtype=float)) for x in batch]
+        except BrokenProcessPool as err:
+            self._kill_pool()
+            raise EvaluationError(
+                f"a worker process died before the batch started: {err}"
+            ) from None
+        done, not_done = cf.wait(futures, timeout=self._timeout)
+        if not_done:
+            self._kill_pool()
+            raise EvaluationError(
+                f"batch of {len(batch)} candidates timed out after {self._timeout:g} s "
+                f"({len(not_done)} unfinished); the worker pool was restarted"
+            )
+        out: list[EvalOutcome] = []
+        for i, fut in enumerate(futures):
+            try:
+                out.append(fut.result())
+            except BrokenProcessPool:
+                self._kill_pool()
+                raise EvaluationError(
+                    f"a worker process died while evaluating candidate {i} of {len(batch)} "
+                    "(crash, out of memory or killed); the worker pool was restarted"
+                ) from None
+            except Exception as err:  # noqa: BLE001 - e.g. fn not picklable
+                self._kill_pool()
+                raise EvaluationError(
+                    f"candidate {i} could not be evaluated in a worker process: "
+                    f"{type(err).__name__}: {err}"
+                ) from err
+        return out
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        self._closed = True
+
+
+def make_executor(workers: int | None = 1, **kwargs: Any) -> Executor:
+    """SerialExecutor for workers == 1, else PoolExecutor(workers, **kwargs)."""
+    if workers == 1:
+        return SerialExecutor()
+    return PoolExecutor(workers, **kwargs)
+
+
+__all__ = [
+    "DEFAULT_BATCH_TIMEOUT_S",
+    "FAILED_OBJECTIVE",
+    "STARTUP_TIMEOUT_S",
+    "EvalOutcome",
+    "Executor",
+    "PoolExecutor",
+    "SerialExecutor",
+    "evaluate_one",
+    "make_executor",
+]

@@ -1,0 +1,44 @@
+"""`EvalOutcome`: the result of evaluating one candidate (light module: numpy-free imports).
+
+Kept apart from `optim.executors` and `optim.cmaes` so pool worker processes and objectives
+import it without pulling in pycma (which takes ~1.5 s to import).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+#: Objective recorded for a failed evaluation, and given to CMA-ES in place of NaN / inf.
+#: Far above any CP-error norm or fall penalty (metres), so failures rank worst.
+FAILED_OBJECTIVE = 1.0e9
+
+
+@dataclass(frozen=True)
+class EvalOutcome:
+    """Result of evaluating one candidate.
+
+    objective: value to minimise (m for the CMRT objective; FAILED_OBJECTIVE on error);
+    fell: the character fell; cpu_seconds: CPU time of the evaluation (s);
+    error: None, or "ExceptionType: message" when the evaluation raised.
+    """
+
+    objective: float
+    fell: bool = False
+    cpu_seconds: float = 0.0
+    error: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> EvalOutcome:
+        return cls(
+            objective=float(d["objective"]),
+            fell=bool(d.get("fell", False)),
+            cpu_seconds=float(d.get("cpu_seconds", 0.0)),
+            error=d.get("error"),
+        )
+
+
+__all__ = ["FAILED_OBJECTIVE", "EvalOutcome"]

@@ -1,0 +1,88 @@
+"""Cheap, picklable, deterministic objectives for tests and benchmarks (no physics).
+
+Each is a top-level class instance, so it can be sent to `PoolExecutor` workers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from optim.outcome import EvalOutcome
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """f(x) = offset + sum((x - centre)^2); `fall_above` marks outcomes above it as falls."""
+
+    centre: float = 0.3
+    offset: float = 0.0
+    fall_above: float | None = None
+    sleep: float = 0.0  # s of wall time per call, to exercise pools
+
+    def __call__(self, x: np.ndarray) -> EvalOutcome:
+        if self.sleep:
+            time.sleep(self.sleep)
+        f = self.offset + float(np.sum((np.asarray(x, dtype=float) - self.centre) ** 2))
+        fell = self.fall_above is not None and f > self.fall_above
+        return EvalOutcome(objective=f, fell=fell, cpu_seconds=0.0)
+
+
+def _hash_uniform(x: np.ndarray, salt: int) -> float:
+    """A deterministic pseudo-random number in [0, 1) from the bytes of x (no global RNG)."""
+    h = hashlib.blake2b(
+        np.asarray(x, dtype=np.float64).tobytes(), digest_size=8, key=salt.to_bytes(8, "little")
+    )
+    return int.from_bytes(h.digest(), "little") / 2.0**64
+
+
+@dataclass(frozen=True)
+class NoisyFlat:
+    """f(x) = level + amplitude * u(x), u deterministic pseudo-noise in [0, 1): no progress."""
+
+    level: float = 1.0
+    amplitude: float = 0.01
+    salt: int = 0
+
+    def __call__(self, x: np.ndarray) -> EvalOutcome:
+        return EvalOutcome(objective=self.level + self.amplitude * _hash_uniform(x, self.salt))
+
+
+@dataclass(frozen=True)
+class RaiseAbove:
+    """Sphere that raises ValueError when x[0] > limit (an evaluation error)."""
+
+    limit: float = 0.5
+
+    def __call__(self, x: np.ndarray) -> EvalOutcome:
+        if float(x[0]) > self.limit:
+            raise ValueError(f"x[0] = {float(x[0]):.3f} above {self.limit}")
+        return EvalOutcome(objective=float(np.sum((np.asarray(x) - 0.3) ** 2)))
+
+
+@dataclass(frozen=True)
+class KillWorker:
+    """Kills the process evaluating it (simulates a crashed or OOM-killed worker)."""
+
+    exit_code: int = 13
+
+    def __call__(self, x: np.ndarray) -> EvalOutcome:
+        os._exit(self.exit_code)
+
+
+@dataclass(frozen=True)
+class Sleep:
+    """Sleeps `seconds` then returns 0 (exercises batch timeouts)."""
+
+    seconds: float = 10.0
+
+    def __call__(self, x: np.ndarray) -> EvalOutcome:
+        time.sleep(self.seconds)
+        return EvalOutcome(objective=0.0)
+
+
+__all__ = ["KillWorker", "NoisyFlat", "RaiseAbove", "Sleep", "Sphere"]
