@@ -110,7 +110,7 @@ class PoseChange(_Strict):
 
 
 class Push(_Strict):
-    """A horizontal external force (N) on a body, from `start` (s from clip start) for `duration` s."""
+    """A horizontal external force (N) on a body from `start` (s from clip start), `duration` s."""
 
     force: Annotated[float, Field(gt=0.0, le=MAX_FORCE_N)]
     direction: Literal["forward", "backward"] = "forward"
@@ -269,5 +269,6 @@ def load_spec(path: str | Path) -> TaskSpec:
     try:
         data = json.loads(text) if p.suffix == ".json" else yaml.safe_load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as err:
-        raise SpecError(f"{p}: not valid {'JSON' if p.suffix == '.json' else 'YAML'}: {err}") from None
+        kind = "JSON" if p.suffix == ".json" else "YAML"
+        raise SpecError(f"{p}: not valid {kind}: {err}") from None
     return parse_spec(data, str(p))

@@ -1,0 +1,216 @@
+"""Characters as data: segments, hinges, feet and standing pose, loaded from YAML and validated.
+
+A character file (see `sim/data/humanoid.yaml`) gives every segment in world coordinates in the
+zero pose (upright, facing +x, y up, soles on y = 0). `load_character` checks it and turns it
+into flat arrays for the planar dynamics (`sim.dynamics`), scaled to a height and mass:
+lengths scale with height, masses with mass, inertias with mass * height^2.
+
+Generalised coordinates: q = [root x, root y, root angle, hinge_1 .. hinge_n], the root being the
+CoM of the root segment; hinge order is the file's segment order. Hinge angles are
+counter-clockwise about +z, child relative to parent (radians in code, degrees in files).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from sim.errors import CharacterError
+
+DATA_DIR = Path(__file__).parent / "data"
+ROOT_DOF = 3
+
+
+@dataclass(frozen=True)
+class Character:
+    """A planar articulated character as arrays (SI units, zero pose in world coordinates)."""
+
+    name: str
+    height: float  # m
+    body_names: tuple[str, ...]
+    hinge_names: tuple[str, ...]
+    parent: np.ndarray  # (nb,) int, -1 for the root; body b > 0 is the child of hinge b - 1
+    mass: np.ndarray  # (nb,) kg
+    inertia: np.ndarray  # (nb,) kg m^2 about the CoM
+    com0: np.ndarray  # (nb, 2) m, CoM in the zero pose
+    anchor0: np.ndarray  # (nb, 2) m, hinge anchor to the parent in the zero pose (root: its CoM)
+    limits: np.ndarray  # (nh, 2) rad
+    feet: np.ndarray  # (nf,) body indices of the feet
+    heel0: np.ndarray  # (nf, 2) m, heel point in the zero pose
+    toe0: np.ndarray  # (nf, 2) m, toe point in the zero pose
+    point_body: np.ndarray  # (np,) body index of each outline point (fall detection)
+    point0: np.ndarray  # (np, 2) m, outline points in the zero pose
+    point_radius: np.ndarray  # (np,) m
+    standing_offsets: np.ndarray  # (nh,) rad, standing pose relative to the zero pose
+    balance_standing: bool
+
+    @property
+    def total_mass(self) -> float:
+        return float(self.mass.sum())
+
+    @property
+    def n_bodies(self) -> int:
+        return len(self.body_names)
+
+    @property
+    def n_hinges(self) -> int:
+        return len(self.hinge_names)
+
+    @property
+    def ndof(self) -> int:
+        return ROOT_DOF + self.n_hinges
+
+    def hinge_index(self, name: str) -> int:
+        try:
+            return self.hinge_names.index(name)
+        except ValueError:
+            raise CharacterError(f"unknown joint {name!r}") from None
+
+    def body_index(self, name: str) -> int:
+        try:
+            return self.body_names.index(name)
+        except ValueError:
+            raise CharacterError(f"unknown body {name!r}") from None
+
+
+def _vec2(value: Any, where: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float) if isinstance(value, list | tuple) else None
+    if arr is None or arr.shape != (2,) or not np.all(np.isfinite(arr)):
+        raise CharacterError(f"{where}: must be a list of two finite numbers [x, y]")
+    return arr
+
+
+def _positive(value: Any, where: str) -> float:
+    if not isinstance(value, int | float) or not value > 0:
+        raise CharacterError(f"{where}: must be a positive number, got {value!r}")
+    return float(value)
+
+
+def parse_character(data: Any, height: float | None = None, mass: float | None = None,
+                    name: str = "character") -> Character:
+    """Validate a character mapping and scale it; CharacterError names the field and the rule."""
+    if not isinstance(data, dict):
+        raise CharacterError(f"{name}: a character file must be a mapping")
+    ref = data.get("reference") or {}
+    ref_h = _positive(ref.get("height"), "reference.height")
+    ref_m = _positive(ref.get("mass"), "reference.mass")
+    segs = data.get("segments")
+    if not isinstance(segs, list) or len(segs) < 2:
+        raise CharacterError("segments: must be a list of at least two segments")
+    root = data.get("root")
+    if not segs[0] or segs[0].get("name") != root:
+        raise CharacterError(f"segments[0]: must be the root segment {root!r}")
+
+    body_names: list[str] = []
+    hinge_names: list[str] = []
+    parent, mass_l, inertia_l, com_l, anchor_l, limits_l = [], [], [], [], [], []
+    feet, heels, toes, pbody, pts, prad = [], [], [], [], [], []
+    for i, seg in enumerate(segs):
+        where = f"segments[{i}]"
+        if not isinstance(seg, dict) or not isinstance(seg.get("name"), str):
+            raise CharacterError(f"{where}.name: every segment needs a name")
+        sname = seg["name"]
+        if sname in body_names:
+            raise CharacterError(f"{where}.name: duplicate segment {sname!r}")
+        mass_l.append(_positive(seg.get("mass"), f"{where}.mass"))
+        inertia_l.append(_positive(seg.get("inertia"), f"{where}.inertia"))
+        com = _vec2(seg.get("com"), f"{where}.com")
+        com_l.append(com)
+        if i == 0:
+            parent.append(-1)
+            anchor_l.append(com)
+        else:
+            pname = seg.get("parent")
+            if pname not in body_names:
+                raise CharacterError(
+                    f"{where}.parent: {pname!r} must name a segment listed before {sname!r}")
+            joint = seg.get("joint")
+            if not isinstance(joint, dict) or not isinstance(joint.get("name"), str):
+                raise CharacterError(f"{where}.joint: needs a name, an anchor and limits")
+            if joint["name"] in hinge_names:
+                raise CharacterError(f"{where}.joint.name: duplicate joint {joint['name']!r}")
+            lim = joint.get("limits")
+            if (not isinstance(lim, list) or len(lim) != 2 or not all(
+                    isinstance(v, int | float) for v in lim) or not lim[0] < lim[1]):
+                raise CharacterError(f"{where}.joint.limits: must be [lo, hi] degrees, lo < hi")
+            if not lim[0] <= 0.0 <= lim[1]:
+                raise CharacterError(f"{where}.joint.limits: must include the zero pose (0)")
+            parent.append(body_names.index(pname))
+            anchor_l.append(_vec2(joint.get("anchor"), f"{where}.joint.anchor"))
+            hinge_names.append(joint["name"])
+            limits_l.append(np.radians(lim))
+        body_names.append(sname)
+        if "foot" in seg:
+            foot = seg["foot"]
+            if not isinstance(foot, dict):
+                raise CharacterError(f"{where}.foot: must hold heel and toe points")
+            heel = _vec2(foot.get("heel"), f"{where}.foot.heel")
+            toe = _vec2(foot.get("toe"), f"{where}.foot.toe")
+            if not toe[0] > heel[0]:
+                raise CharacterError(f"{where}.foot: the toe must be ahead (+x) of the heel")
+            feet.append(i)
+            heels.append(heel)
+            toes.append(toe)
+        for k, p in enumerate(seg.get("points", []) or []):
+            if not isinstance(p, list) or len(p) != 3:
+                raise CharacterError(f"{where}.points[{k}]: must be [x, y, radius]")
+            pbody.append(i)
+            pts.append(_vec2(p[:2], f"{where}.points[{k}]"))
+            prad.append(float(p[2]))
+    if not feet:
+        raise CharacterError("segments: at least one segment needs a foot (heel and toe)")
+
+    standing = data.get("standing") or {}
+    offsets = np.zeros(len(hinge_names))
+    for jname, deg in (standing.get("pose") or {}).items():
+        if jname not in hinge_names:
+            raise CharacterError(f"standing.pose: unknown joint {jname!r}")
+        offsets[hinge_names.index(jname)] = np.radians(float(deg))
+
+    h = ref_h if height is None else float(height)
+    m = ref_m if mass is None else float(mass)
+    if not 0.3 * ref_h <= h <= 3 * ref_h:
+        raise CharacterError(f"height: {h} m is outside [{0.3 * ref_h:g}, {3 * ref_h:g}]")
+    if m <= 0:
+        raise CharacterError("mass: must be positive")
+    ls, ms = h / ref_h, m / ref_m
+    arr = np.asarray
+    return Character(
+        name=name,
+        height=h,
+        body_names=tuple(body_names),
+        hinge_names=tuple(hinge_names),
+        parent=arr(parent, dtype=np.int64),
+        mass=arr(mass_l) * ms,
+        inertia=arr(inertia_l) * ms * ls**2,
+        com0=arr(com_l) * ls,
+        anchor0=arr(anchor_l) * ls,
+        limits=arr(limits_l),
+        feet=arr(feet, dtype=np.int64),
+        heel0=arr(heels) * ls,
+        toe0=arr(toes) * ls,
+        point_body=arr(pbody, dtype=np.int64),
+        point0=arr(pts).reshape(-1, 2) * ls,
+        point_radius=arr(prad) * ls,
+        standing_offsets=offsets,
+        balance_standing=bool(standing.get("balance", False)),
+    )
+
+
+@lru_cache(maxsize=16)
+def load_character(model: str = "humanoid", height: float | None = None,
+                   mass: float | None = None) -> Character:
+    """Load `sim/data/<model>.yaml` (or a path), scaled to `height` m and `mass` kg."""
+    path = Path(model) if model.endswith((".yaml", ".yml")) else DATA_DIR / f"{model}.yaml"
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise CharacterError(f"character {model!r}: cannot read {path} ({err.strerror})") from None
+    except yaml.YAMLError as err:
+        raise CharacterError(f"character {model!r}: not valid YAML: {err}") from None
+    return parse_character(data, height, mass, name=path.stem)

@@ -1,0 +1,237 @@
+"""The momentum balance controller (Macchietto et al. 2009, as in the paper's section 3).
+
+At QP_RATE (60 Hz) it chooses joint accelerations qdd* minimising
+
+    b_l |Ldot_des - A_L qdd|^2 + b_h |Hdot_des - A_H qdd|^2 + b_t |W (qdd_des - qdd)|^2
+    subject to J_s qdd = 0                                   (the feet stay planted)
+
+through the KKT system (momentum rows divided by the total mass so the weights are comparable;
+J-dot terms ignored, as in the paper). Every simulation step, floating-base inverse dynamics
+turns qdd* into hinge torques with the root unactuated (`sim.dynamics.inverse_dynamics`). When
+the support wrench leaves the friction cone or its centre of pressure leaves the support, the
+controller has lost balance and hands over to the fall controller: a low-stiffness critically
+damped PD on the last pose.
+
+Linear momentum: Ldot_des,x = k_l m (c_r,x - c_x) + d_l (m cdot_r,x - L_x), with
+c_r = support centre + CMRT displacement; vertically damping only, Ldot_des,y = -d_lv L_y
+(plus k_l m dy when the CMRT has a vertical part), since a bend lowers the CM and a fixed
+height target would fight the pose. Angular momentum: the desired CoP is the support centre
+(kept COP_MARGIN inside the support) and Hdot_des = (p_des - c_x) F_y + c_y F_x with
+F = Ldot_des - m g, the ground force that places the CoP there.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+from sim.character import ROOT_DOF, Character
+from sim.dynamics import GRAVITY
+
+QP_RATE = 60.0  # Hz
+COP_MARGIN = 0.02  # m, desired CoP kept this far inside the heel/toe edges
+QDD_REGULARISATION = 1e-4  # on |qdd|^2: keeps the KKT matrix definite
+CONSTRAINT_REGULARISATION = 1e-7  # straight knees in double support drop a rank of J_s
+FALL_STIFFNESS = 30.0  # N m / rad, the fall controller's low stiffness
+FALL_KD_STABILITY = 0.5  # explicit PD stays stable for kd dt / I below ~1: keep a margin
+
+#: Default tracking weights W by joint (paper 6.3.1: lower weights on arms let them move for
+#: angular momentum; ankles are lowered too so the balance objectives can use them).
+DEFAULT_TRACKING_WEIGHTS: dict[str, float] = {
+    "hip_r": 1.0, "knee_r": 1.0, "ankle_r": 0.3, "hip_l": 1.0, "knee_l": 1.0, "ankle_l": 0.3,
+    "waist": 1.0, "neck": 1.0, "shoulder_r": 0.3, "elbow_r": 0.3, "shoulder_l": 0.3,
+    "elbow_l": 0.3,
+}
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """Gains and weights. Defaults balance the 70 kg humanoid (see docs/physics.md)."""
+
+    k_l: float = 20.0  # s^-2, CM spring
+    d_l: float = 7.0  # s^-1, CM damping (horizontal)
+    d_l_vertical: float = 7.0  # s^-1, vertical momentum damping
+    k_t: float = 100.0  # s^-2, joint tracking stiffness
+    d_t: float = 20.0  # s^-1, joint tracking damping
+    b_l: float = 1.0  # weight of the linear momentum objective
+    b_h: float = 3.0  # weight of the angular momentum objective
+    b_t: float = 0.1  # weight of the tracking objective
+    weights: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_TRACKING_WEIGHTS))
+
+    def with_overrides(self, values: dict[str, float]) -> ControllerParams:
+        names = {f.name for f in fields(self)} - {"weights"}
+        bad = set(values) - names
+        if bad:
+            raise ValueError(f"unknown controller parameters: {sorted(bad)}")
+        return replace(self, **values)
+
+    def scaled(self, factors: dict[str, float]) -> ControllerParams:
+        return replace(self, **{k: getattr(self, k) * v for k, v in factors.items()})
+
+    def weight_vector(self, character: Character) -> np.ndarray:
+        return np.array([self.weights.get(n, 1.0) for n in character.hinge_names])
+
+
+def ease(u: float) -> tuple[float, float, float]:
+    """Quintic ease-in-ease-out s(u) on [0, 1] and its first two derivatives in u (C2)."""
+    if u <= 0.0:
+        return 0.0, 0.0, 0.0
+    if u >= 1.0:
+        return 1.0, 0.0, 0.0
+    u2 = u * u
+    return (u2 * u * (10.0 - 15.0 * u + 6.0 * u2),
+            30.0 * u2 * (1.0 - 2.0 * u + u2),
+            60.0 * u * (1.0 - 3.0 * u + 2.0 * u2))
+
+
+class PoseTrajectory:
+    """Reference hinge trajectory: the standing pose, changed by motions in time order.
+
+    Each motion (start s, duration T, offsets in radians relative to the standing pose for some
+    joints) eases the named joints from their previous target to the new one.
+    """
+
+    def __init__(self, standing: np.ndarray, motions: list[tuple[float, float, dict[int, float]]]):
+        self.standing = standing.copy()
+        self.segments: list[tuple[float, float, int, float, float]] = []  # start, T, j, from, to
+        current = standing.copy()
+        for start, dur, targets in sorted(motions, key=lambda m: m[0]):
+            for j, off in targets.items():
+                goal = standing[j] + off
+                self.segments.append((start, dur, j, current[j], goal))
+                current[j] = goal
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        q = self.standing.copy()
+        qd = np.zeros_like(q)
+        qdd = np.zeros_like(q)
+        for start, dur, j, a, b in self.segments:
+            if t < start:
+                continue
+            s, ds, dds = ease((t - start) / dur)
+            q[j] = a + (b - a) * s
+            qd[j] = (b - a) * ds / dur
+            qdd[j] = (b - a) * dds / (dur * dur)
+        return q, qd, qdd
+
+
+class GainScheduler:
+    """Ease-in-ease-out changes of gains over time windows (paper 6.3.2).
+
+    Each entry (start, end, ramp, factors): inside [start, end] the named parameters are
+    multiplied by 1 + (factor - 1) w(t), w rising from 0 to 1 over `ramp` after `start` and
+    falling back to 0 over `ramp` before `end`.
+    """
+
+    def __init__(self, base: ControllerParams,
+                 entries: list[tuple[float, float, float, dict[str, float]]]):
+        self.base = base
+        self.entries = entries
+
+    def __call__(self, t: float) -> ControllerParams:
+        factors: dict[str, float] = {}
+        for start, end, ramp, scale in self.entries:
+            if not start <= t <= end:
+                continue
+            r = max(min(ramp, 0.5 * (end - start)), 1e-9)
+            w = min(ease((t - start) / r)[0], ease((end - t) / r)[0])
+            for k, v in scale.items():
+                factors[k] = factors.get(k, 1.0) * (1.0 + (v - 1.0) * w)
+        return self.base.scaled(factors) if factors else self.base
+
+
+@dataclass
+class MomentumController:
+    """Solves the momentum QP; holds qdd* between solves."""
+
+    character: Character
+    schedule: GainScheduler
+    trajectory: PoseTrajectory
+    qdd: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.n = self.character.ndof
+        self.mass = self.character.total_mass
+        self.qdd = np.zeros(self.n)
+
+    def reset(self) -> None:
+        self.qdd = np.zeros(self.n)
+
+    def solve(self, t: float, q: np.ndarray, qd: np.ndarray, c: np.ndarray, cd: np.ndarray,
+              A_L: np.ndarray, A_H: np.ndarray, Js: np.ndarray, support: tuple[float, float],
+              c_ref: tuple[float, float], cd_ref: tuple[float, float]) -> np.ndarray:
+        """New qdd* from the state; support = (back edge x, front edge x), c_ref = (x, dy)."""
+        prm = self.schedule(t)
+        m = self.mass
+        n = self.n
+        L = m * cd
+        ldot = np.array([
+            prm.k_l * m * (c_ref[0] - c[0]) + prm.d_l * (m * cd_ref[0] - L[0]),
+            prm.k_l * m * c_ref[1] - prm.d_l_vertical * L[1],
+        ])
+        F = ldot + np.array([0.0, m * GRAVITY])
+        lo, hi = support
+        p_des = min(max(0.5 * (lo + hi), lo + COP_MARGIN), hi - COP_MARGIN)
+        hdot = (p_des - c[0]) * F[1] + c[1] * F[0]
+        q_r, qd_r, qdd_r = self.trajectory(t)
+        hq = slice(ROOT_DOF, n)
+        qdd_des = prm.k_t * (q_r - q[hq]) + prm.d_t * (qd_r - qd[hq]) + qdd_r
+        w2 = prm.weight_vector(self.character) ** 2
+        Al = A_L / m
+        ah = A_H / m
+        H = prm.b_l * Al.T @ Al + prm.b_h * np.outer(ah, ah)
+        H[hq, hq] += prm.b_t * np.diag(w2)
+        H += QDD_REGULARISATION * np.eye(n)
+        g = prm.b_l * Al.T @ (ldot / m) + prm.b_h * ah * (hdot / m)
+        g[hq] += prm.b_t * w2 * qdd_des
+        k = Js.shape[0]
+        K = np.zeros((n + k, n + k))
+        K[:n, :n] = H
+        K[:n, n:] = Js.T
+        K[n:, :n] = Js
+        K[n:, n:] = -CONSTRAINT_REGULARISATION * np.eye(k)
+        rhs = np.concatenate([g, np.zeros(k)])
+        self.qdd = np.linalg.solve(K, rhs)[:n]
+        return self.qdd
+
+
+def support_wrench_ok(f: np.ndarray, sole_x: np.ndarray, support: tuple[float, float],
+                      mu: float) -> tuple[bool, float, str]:
+    """Check the inverse dynamics' support wrench (per foot fx, fy, torque about the sole centre).
+
+    Returns (ok, implied CoP x, reason when not ok): the total normal force must be positive, the
+    total tangential force inside the friction cone, and the CoP inside the support.
+    """
+    fx = f[0::3]
+    fy = f[1::3]
+    tz = f[2::3]
+    fy_sum = float(fy.sum())
+    if fy_sum <= 0.0:
+        return False, math.nan, "no_normal_force"
+    cop = float((sole_x * fy + tz).sum()) / fy_sum
+    if abs(float(fx.sum())) > mu * fy_sum:
+        return False, cop, "friction_cone"
+    if not support[0] <= cop <= support[1]:
+        return False, cop, "cop_outside_support"
+    return True, cop, ""
+
+
+class FallController:
+    """Low-stiffness, critically damped joint PD holding the pose at hand-over."""
+
+    def __init__(self, character: Character, dt: float):
+        ch = character
+        a_chi = ch.com0[1:] - ch.anchor0[1:]
+        inertia_about_joint = ch.inertia[1:] + ch.mass[1:] * (a_chi**2).sum(axis=1)
+        self.kp = FALL_STIFFNESS
+        kd = 2.0 * np.sqrt(self.kp * inertia_about_joint)
+        self.kd = np.minimum(kd, FALL_KD_STABILITY * inertia_about_joint / dt)
+        self.target = np.zeros(ch.n_hinges)
+
+    def engage(self, hinge_q: np.ndarray) -> None:
+        self.target = hinge_q.copy()
+
+    def torques(self, hinge_q: np.ndarray, hinge_qd: np.ndarray) -> np.ndarray:
+        return self.kp * (self.target - hinge_q) - self.kd * hinge_qd

@@ -1,0 +1,239 @@
+"""Planar kinematics and dynamics of a character (numba-compiled).
+
+Coordinates q = [x, y, phi, theta_1..theta_n]: root CoM position and angle, then hinge angles.
+For body b with mass m_b, inertia I_b, CoM p_b and angle alpha_b (phi plus the hinges on its path
+from the root), the CoM Jacobian Jv_b has the identity in the x, y columns and
+perp(p_b - o_j) = (-(p_b - o_j)_y, (p_b - o_j)_x) in the column of the root angle (o = root CoM)
+and of every hinge j on its path (o_j the hinge's world position); Jw_b has 1 in those columns.
+
+    M = sum m Jv^T Jv + I Jw^T Jw,  h = C + G,  C = sum m Jv^T (dJv qd),  G = -sum m Jv^T g
+
+with g = (0, -GRAVITY). The equations of motion are M qdd + h = S^T tau + J_c^T f. There is no
+gyroscopic term in the plane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from sim.character import ROOT_DOF, Character
+
+GRAVITY = 9.81  # m s^-2
+
+
+@dataclass(frozen=True)
+class ModelArrays:
+    """The constant arrays the compiled functions need, derived from a Character."""
+
+    parent: np.ndarray
+    a_par: np.ndarray  # (nb, 2) parent CoM -> hinge anchor, parent frame, zero pose
+    a_chi: np.ndarray  # (nb, 2) hinge anchor -> child CoM, child frame, zero pose
+    path: np.ndarray  # (nb, nb) bool: path[b, k] is True when hinge of body k moves body b
+    mass: np.ndarray
+    inertia: np.ndarray
+    feet: np.ndarray
+    sole_local: np.ndarray  # (nf, 2) sole centre relative to the foot CoM, zero pose
+    heel_local: np.ndarray  # (nf, 2)
+    toe_local: np.ndarray  # (nf, 2)
+    point_body: np.ndarray
+    point_local: np.ndarray
+    point_radius: np.ndarray
+
+    @classmethod
+    def from_character(cls, ch: Character) -> ModelArrays:
+        nb = ch.n_bodies
+        a_par = np.zeros((nb, 2))
+        a_chi = np.zeros((nb, 2))
+        path = np.zeros((nb, nb), dtype=np.bool_)
+        for b in range(1, nb):
+            par = ch.parent[b]
+            a_par[b] = ch.anchor0[b] - ch.com0[par]
+            a_chi[b] = ch.com0[b] - ch.anchor0[b]
+            k = b
+            while k > 0:
+                path[b, k] = True
+                k = ch.parent[k]
+        fc = ch.com0[ch.feet]
+        return cls(
+            parent=ch.parent.copy(), a_par=a_par, a_chi=a_chi, path=path,
+            mass=ch.mass.copy(), inertia=ch.inertia.copy(), feet=ch.feet.copy(),
+            sole_local=0.5 * (ch.heel0 + ch.toe0) - fc,
+            heel_local=ch.heel0 - fc, toe_local=ch.toe0 - fc,
+            point_body=ch.point_body.copy(),
+            point_local=ch.point0 - ch.com0[ch.point_body],
+            point_radius=ch.point_radius.copy(),
+        )
+
+    def args(self) -> tuple:
+        return (self.parent, self.a_par, self.a_chi, self.path, self.mass, self.inertia)
+
+
+@njit(cache=True)
+def _rot(a: float, v: np.ndarray) -> tuple[float, float]:
+    c, s = np.cos(a), np.sin(a)
+    return c * v[0] - s * v[1], s * v[0] + c * v[1]
+
+
+@njit(cache=True)
+def forward_kinematics(q, parent, a_par, a_chi):
+    """Body angles (nb,), CoMs (nb, 2) and hinge anchors (nb, 2; the root's is its CoM)."""
+    nb = parent.shape[0]
+    alpha = np.empty(nb)
+    p = np.empty((nb, 2))
+    o = np.empty((nb, 2))
+    alpha[0] = q[2]
+    p[0, 0] = q[0]
+    p[0, 1] = q[1]
+    o[0] = p[0]
+    for b in range(1, nb):
+        par = parent[b]
+        alpha[b] = alpha[par] + q[ROOT_DOF + b - 1]
+        rx, ry = _rot(alpha[par], a_par[b])
+        o[b, 0] = p[par, 0] + rx
+        o[b, 1] = p[par, 1] + ry
+        cx, cy = _rot(alpha[b], a_chi[b])
+        p[b, 0] = o[b, 0] + cx
+        p[b, 1] = o[b, 1] + cy
+    return alpha, p, o
+
+
+@njit(cache=True)
+def body_point(alpha, p, b, local):
+    """World position of a point given relative to body b's CoM in the zero pose."""
+    rx, ry = _rot(alpha[b], local)
+    return np.array([p[b, 0] + rx, p[b, 1] + ry])
+
+
+@njit(cache=True)
+def point_jacobian(r, b, o, path, n):
+    """(2, n) Jacobian of the world point r fixed on body b."""
+    J = np.zeros((2, n))
+    J[0, 0] = 1.0
+    J[1, 1] = 1.0
+    J[0, 2] = -(r[1] - o[0, 1])
+    J[1, 2] = r[0] - o[0, 0]
+    nb = path.shape[0]
+    for k in range(1, nb):
+        if path[b, k]:
+            J[0, ROOT_DOF + k - 1] = -(r[1] - o[k, 1])
+            J[1, ROOT_DOF + k - 1] = r[0] - o[k, 0]
+    return J
+
+
+@njit(cache=True)
+def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
+    """Mass matrix M (n, n), bias h = C + G (n,), CoM c, its velocity, momentum rows.
+
+    Returns (M, h, alpha, p, o, omega, c, cd, A_L, A_H): A_L (2, n) maps qd to linear momentum,
+    A_H (n,) maps qd to the angular momentum about the CoM.
+    """
+    nb = parent.shape[0]
+    n = q.shape[0]
+    alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
+    omega = np.empty(nb)
+    acc = np.zeros((nb, 2))  # velocity-product (centripetal) CoM accelerations, qdd = 0
+    omega[0] = qd[2]
+    for b in range(1, nb):
+        par = parent[b]
+        omega[b] = omega[par] + qd[ROOT_DOF + b - 1]
+        w2p = omega[par] * omega[par]
+        w2 = omega[b] * omega[b]
+        aox = acc[par, 0] - w2p * (o[b, 0] - p[par, 0])
+        aoy = acc[par, 1] - w2p * (o[b, 1] - p[par, 1])
+        acc[b, 0] = aox - w2 * (p[b, 0] - o[b, 0])
+        acc[b, 1] = aoy - w2 * (p[b, 1] - o[b, 1])
+    M = np.zeros((n, n))
+    h = np.zeros(n)
+    A_L = np.zeros((2, n))
+    A_root = np.zeros(n)  # angular momentum about the root CoM
+    mtot = 0.0
+    c = np.zeros(2)
+    for b in range(nb):
+        m = mass[b]
+        Jv = point_jacobian(p[b], b, o, path, n)
+        Jw = np.zeros(n)
+        Jw[2] = 1.0
+        for k in range(1, nb):
+            if path[b, k]:
+                Jw[ROOT_DOF + k - 1] = 1.0
+        for i in range(n):
+            for j in range(n):
+                M[i, j] += (m * (Jv[0, i] * Jv[0, j] + Jv[1, i] * Jv[1, j])
+                            + inertia[b] * Jw[i] * Jw[j])
+            h[i] += m * (Jv[0, i] * acc[b, 0] + Jv[1, i] * (acc[b, 1] + GRAVITY))
+            A_L[0, i] += m * Jv[0, i]
+            A_L[1, i] += m * Jv[1, i]
+            A_root[i] += m * ((p[b, 0] - p[0, 0]) * Jv[1, i] - (p[b, 1] - p[0, 1]) * Jv[0, i])
+            A_root[i] += inertia[b] * Jw[i]
+        mtot += m
+        c[0] += m * p[b, 0]
+        c[1] += m * p[b, 1]
+    c /= mtot
+    # H about the CoM = H about the root CoM - (c - p_root) x L
+    dx = c[0] - p[0, 0]
+    dy = c[1] - p[0, 1]
+    A_H = np.empty(n)
+    for i in range(n):
+        A_H[i] = A_root[i] - (dx * A_L[1, i] - dy * A_L[0, i])
+    cd = (A_L @ qd) / mtot
+    return M, h, alpha, p, o, omega, c, cd, A_L, A_H
+
+
+@njit(cache=True)
+def feet_terms(alpha, p, o, path, feet, sole_local, heel_local, toe_local, n):
+    """Support Jacobian J_s (3 nf, n): per foot the sole-centre velocity rows and the angle row;
+    and the world heel, toe and sole-centre points (nf, 2) each."""
+    nf = feet.shape[0]
+    Js = np.zeros((3 * nf, n))
+    heel = np.empty((nf, 2))
+    toe = np.empty((nf, 2))
+    sole = np.empty((nf, 2))
+    nb = path.shape[0]
+    for f in range(nf):
+        b = feet[f]
+        s = body_point(alpha, p, b, sole_local[f])
+        sole[f] = s
+        heel[f] = body_point(alpha, p, b, heel_local[f])
+        toe[f] = body_point(alpha, p, b, toe_local[f])
+        J = point_jacobian(s, b, o, path, n)
+        Js[3 * f] = J[0]
+        Js[3 * f + 1] = J[1]
+        Js[3 * f + 2, 2] = 1.0
+        for k in range(1, nb):
+            if path[b, k]:
+                Js[3 * f + 2, ROOT_DOF + k - 1] = 1.0
+    return Js, heel, toe, sole
+
+
+@njit(cache=True)
+def lowest_clearance(alpha, p, point_body, point_local, point_radius):
+    """Smallest height above the ground of the outline points minus their radii, and its index."""
+    best = 1e9
+    arg = -1
+    for i in range(point_body.shape[0]):
+        r = body_point(alpha, p, point_body[i], point_local[i])
+        h = r[1] - point_radius[i]
+        if h < best:
+            best = h
+            arg = i
+    return best, arg
+
+
+@njit(cache=True)
+def inverse_dynamics(M, h, Js, qdd):
+    """Floating-base inverse dynamics with the root unactuated (paper eq. 8-10).
+
+    Root rows: M_r qdd + h_r = J_sr^T f  ->  f = J_sr (J_sr^T J_sr)^-1 (M_r qdd + h_r), the
+    least-norm support wrench (per foot: fx, fy, torque about the sole centre).
+    Hinge rows: tau = M_x qdd + h_x - J_sx^T f. Returns (tau, f).
+    """
+    n = M.shape[0]
+    r = M[:ROOT_DOF] @ qdd + h[:ROOT_DOF]
+    Jsr = np.ascontiguousarray(Js[:, :ROOT_DOF])
+    A = Jsr.T @ Jsr
+    f = Jsr @ np.linalg.solve(A, r)
+    tau = M[ROOT_DOF:] @ qdd + h[ROOT_DOF:] - np.ascontiguousarray(Js[:, ROOT_DOF:n]).T @ f
+    return tau, f
