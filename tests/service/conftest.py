@@ -1,0 +1,51 @@
+"""Unit-test fixtures of the service/worker layers: a migrated SQLite store per test and a
+synthetic objective (optim.synthetic; fakes only here, never in the integration tests)."""
+
+from __future__ import annotations
+
+import pytest
+
+from cmrt.settings import Settings
+from optim.executors import SerialExecutor
+from optim.synthetic import Sphere
+from store import open_repository
+from worker.config import WorkerConfig
+from worker.executors import LocalPoolExecutor
+
+
+def bend_spec(name: str = "bend_a", duration: float = 0.3, **optimize) -> dict:
+    opt = {"popsize": 4, "max_evaluations": 12, "min_evaluations": 0}
+    opt.update(optimize)
+    return {
+        "name": name,
+        "family": "bend",
+        "task": "pose_change",
+        "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
+        "pose_change": {"target": {"waist": -30}},
+        "optimize": opt,
+    }
+
+
+@pytest.fixture
+def settings(tmp_path):
+    return Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/t.db",
+                    lease_seconds=2.0, max_attempts=2, workers=1)
+
+
+@pytest.fixture
+def config(settings):
+    return WorkerConfig(settings, poll_interval=0.02, scan_interval=0.1, stall_timeout=1.0,
+                        broker_deadline=2.0)
+
+
+@pytest.fixture
+def repo(settings):
+    return open_repository(settings.database_url)
+
+
+@pytest.fixture
+def local_executor(config):
+    ex = LocalPoolExecutor(config, pool=SerialExecutor(),
+                           objective_factory=lambda spec: Sphere(centre=0.3))
+    yield ex
+    ex.close()

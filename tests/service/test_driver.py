@@ -1,0 +1,133 @@
+"""Job driver over the store, with a synthetic objective (unit tests)."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+from conftest import bend_spec
+
+from optim.executors import EvalOutcome, SerialExecutor
+from optim.synthetic import Sphere
+from sim.spec import parse_spec
+from store.records import CANCELLED, FAILED, STOPPED
+from worker.driver import FINAL_GENERATION, JobDriver
+from worker.executors import LocalPoolExecutor
+
+
+def _job(repo, spec=None, seed=1):
+    spec = parse_spec(spec or bend_spec())
+    return repo.create_job(spec.model_dump(mode="json"), name=spec.name, family=spec.family_name,
+                           task=spec.task, seed=seed)
+
+
+def test_job_runs_to_its_stop_rule_and_lands_in_library(repo, config, local_executor):
+    job = _job(repo)
+    status = JobDriver(repo, job.id, local_executor, config).run()
+    assert status == STOPPED
+    j = repo.get_job(job.id)
+    assert j.stop_rule == "max_evaluations" and j.iterations == 3 and j.evaluations == 12
+    gens = repo.generations(job.id)
+    assert [g.iteration for g in gens] == [0, 1, 2]
+    for g in range(3):
+        c = repo.evaluation_counts(job.id, g)
+        assert (c.done, c.pending, c.failed) == (4, 0, 0)
+    assert repo.evaluation_counts(job.id, FINAL_GENERATION).done == 2
+    items, total = repo.list_cmrts("bend")
+    assert total == 1 and items[0].job_id == job.id
+    assert items[0].task_parameters == {"duration": 0.3}
+    assert items[0].objective == pytest.approx(j.best_objective)
+
+
+def test_resume_from_stored_generation_gives_the_same_result(repo, config, local_executor):
+    ref = _job(repo)
+    JobDriver(repo, ref.id, local_executor, config).run()
+
+    job = _job(repo)
+    stop = threading.Event()
+    d = JobDriver(repo, job.id, local_executor, config, shutdown=stop,
+                  on_generation=lambda g: stop.set() if g == 0 else None)
+    assert d.run() is None  # interrupted after generation 0, job still running
+    assert repo.get_job(job.id).status == "running" and repo.get_job(job.id).iterations == 1
+    # a half-done generation 1 from the dead driver: its done rows must be reused, not redone
+    assert JobDriver(repo, job.id, local_executor, config).run() == STOPPED
+    a, b = repo.get_job(ref.id), repo.get_job(job.id)
+    assert a.best_objective == b.best_objective and a.best_params == b.best_params
+    assert [g.best for g in repo.generations(ref.id)] == [g.best for g in repo.generations(job.id)]
+
+
+def test_half_done_generation_is_not_evaluated_again(repo, config):
+    calls = []
+
+    class Counting(Sphere):
+        def __call__(self, x):
+            calls.append(tuple(x))
+            return super().__call__(x)
+
+    ex = LocalPoolExecutor(config, pool=SerialExecutor(), objective_factory=lambda s: Counting())
+    job = _job(repo)
+    stop = threading.Event()
+    JobDriver(repo, job.id, ex, config, shutdown=stop,
+              on_generation=lambda g: stop.set()).run()
+    # simulate a crash in generation 1 after 2 of 4 candidates were stored
+    from optim.cmaes import CmaOptimizer
+    opt = CmaOptimizer.loads(repo.latest_generation(job.id).optimizer_state)
+    xs = opt.ask()
+    repo.put_pending_evaluations(job.id, 1, [list(x) for x in xs])
+    for i in (0, 1):
+        repo.record_evaluation(job.id, 1, i, objective=0.5, fell=False, cpu_seconds=0.0)
+    calls.clear()
+    assert JobDriver(repo, job.id, ex, config).run() == STOPPED
+    rows = repo.evaluations(job.id, 1)
+    assert [r.objective for r in rows[:2]] == [0.5, 0.5]
+    assert len(calls) == 2 + 4 + 2  # rest of gen 1, gen 2, final pair
+    assert all(r.attempts == 1 for g in (1, 2) for r in repo.evaluations(job.id, g))
+
+
+def test_cancel_between_generations(repo, config, local_executor):
+    job = _job(repo, bend_spec(max_evaluations=400))
+    d = JobDriver(repo, job.id, local_executor, config,
+                  on_generation=lambda g: repo.request_cancel(job.id) if g == 1 else None)
+    assert d.run() == CANCELLED
+    j = repo.get_job(job.id)
+    assert j.status == CANCELLED and j.iterations == 2
+    assert repo.list_cmrts("bend")[1] == 0
+
+
+class _Killer:
+    def __call__(self, x):
+        raise SystemExit  # stand-in for a process death inside the pool
+
+
+class _DyingPool(SerialExecutor):
+    """A pool whose process dies whenever candidate x[0] > 0.5 (EvaluationError like optim's)."""
+
+    def __init__(self):
+        self.maps = 0
+
+    def map(self, fn, batch):
+        from optim.errors import EvaluationError
+
+        self.maps += 1
+        if any(x[0] > 0.5 for x in batch):
+            raise EvaluationError("a worker process died")
+        return [EvalOutcome(objective=float(sum(x))) for x in batch]
+
+
+def test_candidate_killing_its_pool_process_fails_job_after_max_attempts(repo, config):
+    pool = _DyingPool()
+    ex = LocalPoolExecutor(config, pool=pool)
+    spec = bend_spec()
+    spec["optimize"]["sigma0"] = 0.9
+    job = _job(repo, spec, seed=3)
+    assert JobDriver(repo, job.id, ex, config).run() == FAILED
+    j = repo.get_job(job.id)
+    assert "worker process died every time" in j.error and "started 2 times" in j.error
+    assert pool.maps <= config.max_attempts + 1
+
+
+def test_lease_held_elsewhere_means_no_second_driver(repo, config, local_executor):
+    job = _job(repo)
+    assert repo.acquire_driver_lease(job.id, "other", 60)
+    assert JobDriver(repo, job.id, local_executor, config).run() is None
+    assert repo.get_job(job.id).status == "queued"

@@ -1,0 +1,128 @@
+"""One candidate evaluation against the store: the body of the Celery task (and of the local
+pool path's bookkeeping).
+
+Idempotent and attempt-counted:
+  1. `start_attempt` atomically counts an attempt at the pending (job, generation, index) row;
+     a row already done or failed is skipped (a duplicate or re-delivered message costs nothing);
+  2. past `max_attempts` the evaluation is failed with a clear error instead of run again (a
+     candidate that kills its worker every time fails its job instead of looping);
+  3. the objective runs (one simulator per process, cached per spec by optim.objective);
+  4. `record_evaluation` upserts the small result keyed by (job, generation, index): the first
+     result wins, a repeated one changes nothing.
+An exception inside the objective is a property of the candidate (deterministic): it is stored as
+`done` with the worst objective (optim's FAILED_OBJECTIVE) and the error in `details`, so CMA-ES
+ranks it last, exactly as the CLI's executors do.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from optim.executors import EvalOutcome, evaluate_one
+from sim.spec import TaskSpec, parse_spec
+from store import NotFound, Repository
+from store.records import PENDING
+from worker import faults
+
+log = logging.getLogger(__name__)
+
+ObjectiveFactory = Callable[[TaskSpec], Callable[[np.ndarray], Any]]
+
+
+def default_objective_factory(spec: TaskSpec) -> Callable[[np.ndarray], Any]:
+    from optim.objective import SimObjective
+
+    return SimObjective(spec)
+
+
+def attempts_exhausted_message(generation: int, index: int, attempts: int) -> str:
+    return (
+        f"candidate {index} of generation {generation} was started {attempts} times and its "
+        "worker process died every time (crash, out of memory, or killed past the time limit); "
+        "giving up on it"
+    )
+
+
+class SpecCache:
+    """Per-process cache: job id -> (spec, objective). Specs of a job never change."""
+
+    def __init__(self, factory: ObjectiveFactory | None = None, size: int = 16) -> None:
+        self.factory = factory or default_objective_factory
+        self.size = size
+        self._d: OrderedDict[str, tuple[TaskSpec, Any]] = OrderedDict()
+
+    def get(
+        self, repo: Repository, job_id: str, spec_data: dict | None = None
+    ) -> tuple[TaskSpec, Any]:
+        hit = self._d.get(job_id)
+        if hit is not None:
+            self._d.move_to_end(job_id)
+            return hit
+        if spec_data is None:
+            spec_data = repo.get_job(job_id).spec
+        spec = parse_spec(spec_data, f"job {job_id} spec")
+        entry = (spec, self.factory(spec))
+        self._d[job_id] = entry
+        while len(self._d) > self.size:
+            self._d.popitem(last=False)
+        return entry
+
+
+def outcome_fields(out: EvalOutcome, worker: str | None = None) -> dict[str, Any]:
+    """record_evaluation keyword arguments for an objective outcome (see module docstring)."""
+    details: dict[str, Any] = {}
+    if out.error is not None:
+        details["error"] = out.error
+    if worker:
+        details["worker"] = worker
+    return {
+        "objective": float(out.objective),
+        "fell": bool(out.fell),
+        "cpu_seconds": float(out.cpu_seconds),
+        "details": details or None,
+    }
+
+
+def run_candidate(
+    repo: Repository,
+    job_id: str,
+    generation: int,
+    index: int,
+    *,
+    max_attempts: int,
+    cache: SpecCache,
+    worker_name: str | None = None,
+) -> dict[str, Any]:
+    """Evaluate one stored candidate and upsert its result; returns a small JSON dict."""
+    try:
+        rec = repo.start_attempt(job_id, generation, index)
+    except NotFound:
+        return {"status": "missing"}
+    if rec.status != PENDING:
+        return {"status": rec.status, "skipped": True}
+    if rec.attempts > max_attempts:
+        msg = attempts_exhausted_message(generation, index, rec.attempts - 1)
+        repo.fail_evaluation(job_id, generation, index, msg)
+        log.error("job %s: %s", job_id, msg)
+        return {"status": "failed", "attempts": rec.attempts}
+    job = repo.get_job(job_id)
+    if job.terminal:  # cancelled or failed meanwhile: don't spend CPU on it
+        return {"status": "skipped", "job_status": job.status}
+    spec, objective = cache.get(repo, job_id, job.spec)
+    faults.maybe_crash(spec.name, generation, index)
+    out = evaluate_one(objective, np.asarray(rec.params, dtype=float))
+    result = repo.record_evaluation(
+        job_id, generation, index, **outcome_fields(out, worker_name or socket.gethostname())
+    )
+    return {
+        "status": result.record.status,
+        "objective": result.record.objective,
+        "attempts": rec.attempts,
+        "changed": result.changed,
+    }

@@ -1,0 +1,223 @@
+"""How a job driver gets one generation evaluated. Both executors work on the store: the
+candidates are already stored as pending evaluations (keyed by job, generation, index) and the
+executor returns once every one of them is resolved (done or failed).
+
+- `LocalPoolExecutor` (embedded default, no broker): evaluates in a local process pool
+  (`optim.executors.PoolExecutor`) and upserts the results itself; attempts are counted the same
+  way, so a candidate that kills its pool process fails its job after `max_attempts`.
+- `CeleryExecutor`: sends one `evaluate_candidate(job_id, generation, index)` task per pending
+  candidate and waits by polling the store's counts (never `.get()`); when nothing of the
+  generation finished for `stall_timeout` s it sends the unresolved ones again (idempotent), so a
+  message lost with a broker restart never hangs a job; if the broker stays unreachable for
+  `broker_deadline` s the job fails with a clear error.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from optim.errors import EvaluationError
+from optim.executors import Executor as BatchExecutor
+from optim.executors import PoolExecutor
+from store import EvaluationRecord, Repository
+from store.records import PENDING
+from worker.config import WorkerConfig
+from worker.evaluation import (
+    ObjectiveFactory,
+    SpecCache,
+    attempts_exhausted_message,
+    default_objective_factory,
+    outcome_fields,
+)
+
+log = logging.getLogger(__name__)
+
+
+class JobFailedError(Exception):
+    """The job cannot continue; the message is stored as its error."""
+
+
+class DriverInterruptError(Exception):
+    """The driver must stop now (cancel requested, lease lost, shutdown); see driver."""
+
+
+#: Called by executors while they wait: raises DriverInterruptError when the driver must stop.
+Checkpoint = Callable[[], None]
+
+
+class GenerationExecutor(ABC):
+    #: Short name shown by /health and the job's details.
+    kind: str = "?"
+
+    @abstractmethod
+    def evaluate(
+        self,
+        repo: Repository,
+        job_id: str,
+        spec_data: dict[str, Any],
+        generation: int,
+        population: int,
+        check: Checkpoint,
+    ) -> list[EvaluationRecord]:
+        """Resolve every pending evaluation of (job, generation); return them in index order."""
+
+    def stats(self) -> dict[str, Any]:
+        return {}
+
+    def close(self) -> None:  # noqa: B027
+        pass
+
+
+class LocalPoolExecutor(GenerationExecutor):
+    kind = "local-pool"
+
+    def __init__(
+        self,
+        config: WorkerConfig,
+        *,
+        pool: BatchExecutor | None = None,
+        objective_factory: ObjectiveFactory | None = None,
+    ) -> None:
+        self.config = config
+        self.pool = pool if pool is not None else PoolExecutor(config.local_workers)
+        self.cache = SpecCache(objective_factory or default_objective_factory)
+        self.node = f"{socket.gethostname()}/local-pool"
+
+    def evaluate(self, repo, job_id, spec_data, generation, population, check):
+        _, objective = self.cache.get(repo, job_id, spec_data)
+        while True:
+            check()
+            rows = repo.evaluations(job_id, generation)
+            todo: list[EvaluationRecord] = []
+            for r in rows:
+                if r.status != PENDING:
+                    continue
+                rec = repo.start_attempt(job_id, generation, r.index)
+                if rec.status != PENDING:
+                    continue
+                if rec.attempts > self.config.max_attempts:
+                    repo.fail_evaluation(job_id, generation, r.index,
+                                         attempts_exhausted_message(generation, r.index,
+                                                                    rec.attempts - 1))
+                    continue
+                todo.append(rec)
+            if not todo:
+                return repo.evaluations(job_id, generation)
+            try:
+                outs = self.pool.map(objective, [np.asarray(r.params, dtype=float) for r in todo])
+            except EvaluationError as err:  # a pool process died: count it, try the rest again
+                log.warning("job %s generation %d: %s", job_id, generation, err)
+                continue
+            for r, out in zip(todo, outs, strict=True):
+                repo.record_evaluation(job_id, generation, r.index,
+                                       **outcome_fields(out, self.node))
+
+    def stats(self):
+        return {"workers": self.pool.workers}
+
+    def close(self):
+        self.pool.close()
+
+
+def _broker_errors() -> tuple[type[BaseException], ...]:
+    from kombu.exceptions import OperationalError
+
+    errs: list[type[BaseException]] = [OperationalError, ConnectionError, OSError, TimeoutError]
+    try:
+        import redis.exceptions as rex
+
+        errs += [rex.ConnectionError, rex.TimeoutError]
+    except ImportError:  # pragma: no cover
+        pass
+    return tuple(errs)
+
+
+class CeleryExecutor(GenerationExecutor):
+    kind = "celery"
+
+    def __init__(self, config: WorkerConfig, app: Any | None = None) -> None:
+        if app is None:
+            from worker.celery_app import app as default_app
+
+            app = default_app
+        self.config = config
+        self.app = app
+        self.sent = 0
+        self.resent = 0
+        self._errors = _broker_errors()
+
+    # -- broker ------------------------------------------------------------------------------
+    def _send(
+        self, job_id: str, generation: int, indices: Sequence[int], check: Checkpoint
+    ) -> None:
+        from worker.celery_app import TASK_EVALUATE
+
+        pending = list(indices)
+        down_since: float | None = None
+        delay = 0.2
+        while pending:
+            i = pending[0]
+            try:
+                self.app.send_task(
+                    TASK_EVALUATE,
+                    args=[job_id, generation, i],
+                    queue=self.config.queue,
+                    retry=False,
+                )
+                pending.pop(0)
+                self.sent += 1
+                down_since, delay = None, 0.2
+            except self._errors as err:
+                now = time.monotonic()
+                down_since = down_since or now
+                if now - down_since > self.config.broker_deadline:
+                    raise JobFailedError(
+                        f"the broker has been unreachable for {now - down_since:.0f} s "
+                        f"(deadline CMRT_BROKER_DEADLINE = {self.config.broker_deadline:g} s): "
+                        f"{type(err).__name__}: {err}"
+                    ) from None
+                log.warning("job %s: broker unreachable (%s); retrying", job_id, err)
+                check()
+                time.sleep(delay)
+                delay = min(delay * 2, 5.0)
+
+    def ping(self, timeout: float = 2.0) -> None:
+        """Raise if the broker cannot be reached."""
+        with self.app.connection_for_write() as conn:
+            conn.ensure_connection(max_retries=1, timeout=timeout)
+
+    # -- generation ----------------------------------------------------------------------------
+    def evaluate(self, repo, job_id, spec_data, generation, population, check):
+        rows = repo.evaluations(job_id, generation)
+        unresolved = [r.index for r in rows if r.status == PENDING]
+        self._send(job_id, generation, unresolved, check)
+        resolved = population - len(unresolved)
+        last_progress = time.monotonic()
+        while True:
+            counts = repo.evaluation_counts(job_id, generation)
+            if counts.resolved >= population:
+                return repo.evaluations(job_id, generation)
+            now = time.monotonic()
+            if counts.resolved > resolved:
+                resolved, last_progress = counts.resolved, now
+            elif now - last_progress > self.config.stall_timeout:
+                rows = repo.evaluations(job_id, generation)
+                again = [r.index for r in rows if r.status == PENDING]
+                log.warning(
+                    "job %s generation %d: no progress for %.0f s; sending %d unresolved "
+                    "evaluations again", job_id, generation, now - last_progress, len(again))
+                self._send(job_id, generation, again, check)
+                self.resent += len(again)
+                last_progress = time.monotonic()
+            check()
+            time.sleep(self.config.poll_interval)
+
+    def stats(self):
+        return {"sent": self.sent, "resent": self.resent}
