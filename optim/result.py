@@ -1,0 +1,262 @@
+"""`OptimizationResult`: what one optimisation produced, as a JSON document.
+
+File format (JSON object, `format` = "cmrt-result/1"); units: seconds, metres.
+    spec                 the task spec (dict, as validated by sim.spec)
+    dimension            length of `params` (spec.cmrt_dimension)
+    params               best parameter vector in [0, 1]^dimension (see optim.spline)
+    length               clip length (s); knot_times (s), values (m), vertical_values (m|null)
+    curve                {"t": [...], "dx": [...](, "dy": [...])}: 100 samples of the CMRT
+    objective, fell                      best CMRT, re-evaluated at the end
+    baseline_objective, baseline_fell    the same clip without CMRT (flat spline)
+    evaluations, iterations, stop_rule, wall_seconds, seed
+    history              per generation: iteration, evaluations, best, median, worst, sigma,
+                         best_so_far
+    basis_id             id of the PCA basis if optimised in a reduced space, else null
+    reduced_params       the best point in the reduced search box [0, 1]^k, else null
+
+`save` writes atomically (temp file, fsync, rename). `load`/`from_dict` check every field and
+raise `ResultFileError` naming the file and the field for missing, mistyped or inconsistent data.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from optim._io import atomic_write_text
+from optim.errors import ParamsError, ResultFileError
+from optim.spline import CmrtSpline
+
+RESULT_FORMAT = "cmrt-result/1"
+
+
+def _num(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _num_list(v: Any) -> bool:
+    return isinstance(v, list) and all(_num(x) for x in v)
+
+
+def _opt(check: Callable[[Any], bool]) -> Callable[[Any], bool]:
+    return lambda v: v is None or check(v)
+
+
+_FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "spec": (lambda v: isinstance(v, dict), "an object (the task spec)"),
+    "dimension": (lambda v: _int(v) and v >= 1, "a positive integer"),
+    "params": (_num_list, "a list of numbers"),
+    "length": (lambda v: _num(v) and v > 0, "a positive number of seconds"),
+    "knot_times": (_num_list, "a list of numbers (seconds)"),
+    "values": (_num_list, "a list of numbers (metres)"),
+    "vertical_values": (_opt(_num_list), "null or a list of numbers (metres)"),
+    "curve": (lambda v: isinstance(v, dict), "an object with lists t and dx"),
+    "objective": (_num, "a finite number"),
+    "fell": (lambda v: isinstance(v, bool), "true or false"),
+    "baseline_objective": (_num, "a finite number"),
+    "baseline_fell": (lambda v: isinstance(v, bool), "true or false"),
+    "evaluations": (lambda v: _int(v) and v >= 0, "a non-negative integer"),
+    "iterations": (lambda v: _int(v) and v >= 0, "a non-negative integer"),
+    "stop_rule": (lambda v: isinstance(v, str), "a string"),
+    "wall_seconds": (lambda v: _num(v) and v >= 0, "a non-negative number"),
+    "seed": (_int, "an integer"),
+    "history": (lambda v: isinstance(v, list), "a list of per-generation objects"),
+    "basis_id": (_opt(lambda v: isinstance(v, str)), "null or a string"),
+    "reduced_params": (_opt(_num_list), "null or a list of numbers"),
+}
+_OPTIONAL = {"vertical_values", "basis_id", "reduced_params", "history"}
+_HISTORY_KEYS = ("iteration", "evaluations", "best", "median", "worst", "sigma", "best_so_far")
+
+
+@dataclass
+class OptimizationResult:
+    """One optimisation's outcome (see module docstring for the fields and units)."""
+
+    spec: dict[str, Any]
+    dimension: int
+    params: list[float]
+    length: float
+    knot_times: list[float]
+    values: list[float]
+    vertical_values: list[float] | None
+    curve: dict[str, list[float]]
+    objective: float
+    fell: bool
+    baseline_objective: float
+    baseline_fell: bool
+    evaluations: int
+    iterations: int
+    stop_rule: str
+    wall_seconds: float
+    seed: int
+    history: list[dict[str, Any]] = field(default_factory=list)
+    basis_id: str | None = None
+    reduced_params: list[float] | None = None
+
+    # -- derived -------------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return str(self.spec.get("name", ""))
+
+    @property
+    def family(self) -> str:
+        """The spec's library family (its `family`, else its name)."""
+        return str(self.spec.get("family") or self.spec.get("name", ""))
+
+    def task_spec(self) -> Any:
+        """The spec as a validated `sim.spec.TaskSpec`."""
+        from sim.spec import parse_spec
+
+        return parse_spec(self.spec, f"result {self.name!r} spec")
+
+    def task_parameters(self) -> dict[str, float]:
+        """The spec's task parameters (e.g. {"duration": 0.4}), see TaskSpec.task_parameters."""
+        return self.task_spec().task_parameters()
+
+    def spline(self) -> CmrtSpline:
+        """The best CMRT as a callable spline."""
+        return CmrtSpline(self.length, self.knot_times, self.values, self.vertical_values)
+
+    @property
+    def params_array(self) -> np.ndarray:
+        return np.asarray(self.params, dtype=float)
+
+    @property
+    def improvement(self) -> float:
+        """Relative objective reduction versus the no-CMRT baseline (0.25 = 25 % lower)."""
+        if self.baseline_objective == 0:
+            return 0.0
+        return (self.baseline_objective - self.objective) / abs(self.baseline_objective)
+
+    # -- (de)serialisation -------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": RESULT_FORMAT,
+            "spec": self.spec,
+            "dimension": self.dimension,
+            "params": [float(v) for v in self.params],
+            "length": float(self.length),
+            "knot_times": [float(v) for v in self.knot_times],
+            "values": [float(v) for v in self.values],
+            "vertical_values": None
+            if self.vertical_values is None
+            else [float(v) for v in self.vertical_values],
+            "curve": self.curve,
+            "objective": float(self.objective),
+            "fell": bool(self.fell),
+            "baseline_objective": float(self.baseline_objective),
+            "baseline_fell": bool(self.baseline_fell),
+            "evaluations": int(self.evaluations),
+            "iterations": int(self.iterations),
+            "stop_rule": self.stop_rule,
+            "wall_seconds": float(self.wall_seconds),
+            "seed": int(self.seed),
+            "history": self.history,
+            "basis_id": self.basis_id,
+            "reduced_params": None
+            if self.reduced_params is None
+            else [float(v) for v in self.reduced_params],
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1, allow_nan=False)
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "<result>") -> OptimizationResult:
+        """Validate and build; a bad field raises ResultFileError naming `source` and the field."""
+        if not isinstance(data, Mapping):
+            raise ResultFileError(f"{source}: a result must be a JSON object")
+        fmt = data.get("format", RESULT_FORMAT)
+        if fmt != RESULT_FORMAT:
+            raise ResultFileError(
+                f"{source}: field 'format': unsupported {fmt!r} (expected {RESULT_FORMAT!r})"
+            )
+        for name, (check, what) in _FIELDS.items():
+            if name not in data:
+                if name in _OPTIONAL:
+                    continue
+                raise ResultFileError(f"{source}: missing field {name!r}")
+            if not check(data[name]):
+                raise ResultFileError(f"{source}: field {name!r} must be {what}")
+        d = data
+        if len(d["params"]) != d["dimension"]:
+            raise ResultFileError(
+                f"{source}: field 'params' has {len(d['params'])} numbers, "
+                f"'dimension' says {d['dimension']}"
+            )
+        if any(not 0.0 <= v <= 1.0 for v in d["params"]):
+            raise ResultFileError(f"{source}: field 'params' must lie in [0, 1]")
+        curve = d["curve"]
+        for key in ("t", "dx"):
+            if not _num_list(curve.get(key)):
+                raise ResultFileError(f"{source}: field 'curve.{key}' must be a list of numbers")
+        for i, row in enumerate(d.get("history") or []):
+            if not isinstance(row, Mapping) or not all(_num(row.get(k)) for k in _HISTORY_KEYS):
+                raise ResultFileError(
+                    f"{source}: field 'history[{i}]' needs numbers {', '.join(_HISTORY_KEYS)}"
+                )
+        res = cls(
+            spec=dict(d["spec"]),
+            dimension=int(d["dimension"]),
+            params=[float(v) for v in d["params"]],
+            length=float(d["length"]),
+            knot_times=[float(v) for v in d["knot_times"]],
+            values=[float(v) for v in d["values"]],
+            vertical_values=None
+            if d.get("vertical_values") is None
+            else [float(v) for v in d["vertical_values"]],
+            curve={k: list(v) for k, v in curve.items()},
+            objective=float(d["objective"]),
+            fell=bool(d["fell"]),
+            baseline_objective=float(d["baseline_objective"]),
+            baseline_fell=bool(d["baseline_fell"]),
+            evaluations=int(d["evaluations"]),
+            iterations=int(d["iterations"]),
+            stop_rule=str(d["stop_rule"]),
+            wall_seconds=float(d["wall_seconds"]),
+            seed=int(d["seed"]),
+            history=[dict(r) for r in d.get("history") or []],
+            basis_id=d.get("basis_id"),
+            reduced_params=None
+            if d.get("reduced_params") is None
+            else [float(v) for v in d["reduced_params"]],
+        )
+        try:
+            res.spline()
+        except ParamsError as err:
+            raise ResultFileError(
+                f"{source}: fields 'knot_times'/'values'/'vertical_values'/'length' "
+                f"do not form a valid spline: {err}"
+            ) from None
+        return res
+
+    def save(self, path: str | Path) -> None:
+        """Write the JSON file atomically."""
+        atomic_write_text(path, self.to_json() + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> OptimizationResult:
+        """Read and validate a result file (ResultFileError on any problem)."""
+        p = Path(path)
+        try:
+            text = p.read_text()
+        except OSError as err:
+            raise ResultFileError(f"{p}: cannot read result file ({err.strerror})") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise ResultFileError(f"{p}: not valid JSON ({err})") from None
+        return cls.from_dict(data, str(p))
+
+
+__all__ = ["RESULT_FORMAT", "OptimizationResult"]

@@ -1,0 +1,52 @@
+"""SimObjective against the real simulator (skipped only while sim.clip does not exist)."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+pytest.importorskip("sim.clip")
+
+from optim import objective as objective_mod  # noqa: E402
+from optim.objective import SimObjective, evaluate_params  # noqa: E402
+from optim.spline import flat_params  # noqa: E402
+from sim.spec import parse_spec  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return parse_spec(
+        {
+            "name": "tiny",
+            "task": "quiet_stance",
+            "clip": {"preparation": 0.2, "duration": 0.1, "decay": 0.2},
+        }
+    )
+
+
+def test_pickles_as_spec_json_and_caches_one_simulator(tiny):
+    objective_mod.clear_cache()
+    f = SimObjective(tiny)
+    g = pickle.loads(pickle.dumps(f))
+    assert g == f and g.__getstate__() == {"spec_json": f.spec_json}
+    a = f(flat_params(tiny))
+    sim_first = objective_mod._CACHE[f.spec_json][1]
+    b = g(flat_params(tiny))
+    assert objective_mod._CACHE[f.spec_json][1] is sim_first and len(objective_mod._CACHE) == 1
+    assert a.objective == b.objective and not a.fell and a.error is None
+
+
+def test_flat_spline_equals_no_cmrt_and_is_deterministic(tiny):
+    f = SimObjective(tiny)
+    p = np.random.default_rng(0).random(tiny.cmrt_dimension)
+    first = f(p)
+    assert f(flat_params(tiny)).objective == f(None).objective
+    assert f(p).objective == first.objective  # reset between runs
+
+
+def test_evaluate_params_with_traces(tiny):
+    ev = evaluate_params(tiny, flat_params(tiny), traces=True)
+    assert ev.traces is not None and len(ev.traces.t) == ev.steps
+    assert ev.objective == SimObjective(tiny)(None).objective
