@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +31,7 @@ import numpy as np
 
 from optim._io import atomic_write_text
 from optim.errors import ParamsError, ResultFileError
-from optim.spline import CmrtSpline
+from optim.spline import CmrtSpline, check_params, decode, sample_curve
 
 RESULT_FORMAT = "cmrt-result/1"
 
@@ -102,6 +102,53 @@ class OptimizationResult:
     history: list[dict[str, Any]] = field(default_factory=list)
     basis_id: str | None = None
     reduced_params: list[float] | None = None
+
+    @classmethod
+    def build(
+        cls,
+        spec: Any,
+        params: Sequence[float] | np.ndarray,
+        *,
+        objective: float,
+        fell: bool = False,
+        baseline_objective: float,
+        baseline_fell: bool = False,
+        evaluations: int = 0,
+        iterations: int = 0,
+        stop_rule: str = "",
+        wall_seconds: float = 0.0,
+        seed: int = 0,
+        history: Sequence[Mapping[str, Any]] = (),
+        basis_id: str | None = None,
+        reduced_params: Sequence[float] | None = None,
+    ) -> OptimizationResult:
+        """A result for `spec` (a TaskSpec) whose best CMRT is `params` (spline data derived)."""
+        p = check_params(spec, params)
+        spline = decode(spec, p)
+        return cls(
+            spec=spec.model_dump(mode="json"),
+            dimension=spec.cmrt_dimension,
+            params=[float(v) for v in p],
+            length=spline.length,
+            knot_times=[float(v) for v in spline.knot_times],
+            values=[float(v) for v in spline.values],
+            vertical_values=None
+            if spline.vertical_values is None
+            else [float(v) for v in spline.vertical_values],
+            curve=sample_curve(spline),
+            objective=float(objective),
+            fell=bool(fell),
+            baseline_objective=float(baseline_objective),
+            baseline_fell=bool(baseline_fell),
+            evaluations=int(evaluations),
+            iterations=int(iterations),
+            stop_rule=stop_rule,
+            wall_seconds=float(wall_seconds),
+            seed=int(seed),
+            history=[dict(h) for h in history],
+            basis_id=basis_id,
+            reduced_params=None if reduced_params is None else [float(v) for v in reduced_params],
+        )
 
     # -- derived -------------------------------------------------------------------------------
     @property

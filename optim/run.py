@@ -35,7 +35,7 @@ from optim.errors import CheckpointError, EvaluationError
 from optim.executors import EvalOutcome, Executor
 from optim.objective import SimObjective, spec_json
 from optim.result import OptimizationResult
-from optim.spline import check_params, decode, flat_params, sample_curve
+from optim.spline import check_params, flat_params
 
 if TYPE_CHECKING:
     from optim.pca import Basis
@@ -184,30 +184,21 @@ def optimize(
         if out.error is not None:
             raise EvaluationError(f"final evaluation of the {label} failed: {out.error}")
 
-    spline = decode(spec, best_full)
-    return OptimizationResult(
-        spec=spec.model_dump(mode="json"),
-        dimension=spec.cmrt_dimension,
-        params=[float(v) for v in best_full],
-        length=spline.length,
-        knot_times=[float(v) for v in spline.knot_times],
-        values=[float(v) for v in spline.values],
-        vertical_values=None
-        if spline.vertical_values is None
-        else [float(v) for v in spline.vertical_values],
-        curve=sample_curve(spline),
-        objective=float(best_out.objective),
-        fell=bool(best_out.fell),
-        baseline_objective=float(base_out.objective),
-        baseline_fell=bool(base_out.fell),
+    return OptimizationResult.build(
+        spec,
+        best_full,
+        objective=best_out.objective,
+        fell=best_out.fell,
+        baseline_objective=base_out.objective,
+        baseline_fell=base_out.fell,
         evaluations=opt.evaluations,
         iterations=opt.iterations,
         stop_rule=stop_rule,
         wall_seconds=wall_before + time.perf_counter() - t0,
-        seed=int(seed),
+        seed=seed,
         history=[h.to_dict() for h in opt.history],
         basis_id=None if basis is None else basis.id,
-        reduced_params=None if basis is None else [float(v) for v in best_x],
+        reduced_params=None if basis is None else best_x,
     )
 
 
