@@ -1,0 +1,107 @@
+"""Response and request models of the HTTP API (for validation and the OpenAPI document).
+The task spec itself is `sim.spec.TaskSpec`, the one model shared with the CLI."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from sim.spec import TaskSpec
+
+
+class Problem(BaseModel):
+    detail: str = Field(description="what is wrong, naming the field and the rule")
+
+
+class JobRequest(BaseModel):
+    """A bare TaskSpec, or this envelope with a seed and/or a PCA basis to search in."""
+
+    model_config = ConfigDict(extra="forbid")
+    spec: TaskSpec
+    seed: Annotated[int, Field(ge=0, lt=2**31)] | None = None
+    basis: Annotated[str, Field(max_length=64)] | None = None
+
+
+class JobAccepted(BaseModel):
+    id: str
+    url: str
+    status: str
+
+
+class JobOut(BaseModel):
+    id: str
+    url: str
+    name: str
+    family: str
+    task: str
+    status: str
+    stop_rule: str | None
+    error: str | None
+    seed: int | None
+    basis_id: str | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    best_objective: float | None
+    best_params: list[float] | None
+    evaluations: int
+    iterations: int
+    cancel_requested: bool
+    cmrt_id: str | None = None
+    links: dict[str, str]
+    spec: dict[str, Any] | None = None
+
+
+class JobPage(BaseModel):
+    items: list[JobOut]
+    total: int
+    limit: int
+    offset: int
+
+
+class GenerationOut(BaseModel):
+    iteration: int
+    best: float
+    median: float
+    worst: float
+    sigma: float
+    best_so_far: float
+    evaluations: int
+    wall_time: float
+    created_at: datetime
+
+
+class GenerationPage(BaseModel):
+    job_id: str
+    status: str
+    after: int
+    last: int
+    generations: list[GenerationOut]
+
+
+class CmrtSummary(BaseModel):
+    id: str
+    url: str
+    family: str
+    task_parameters: dict[str, float]
+    character: dict[str, Any]
+    objective: float
+    objective_without: float | None
+    fell: bool
+    job_id: str | None
+    created_at: datetime
+
+
+class CmrtPage(BaseModel):
+    items: list[CmrtSummary]
+    total: int
+    limit: int
+    offset: int
+
+
+class BasisRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    family: Annotated[str, Field(min_length=1, max_length=100)]
+    k: Annotated[int, Field(ge=1, le=16)] = 3

@@ -1,0 +1,157 @@
+"""HTTP API over a SQLite store with the embedded local executor (synthetic objective)."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+from conftest import bend_spec
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+
+
+@pytest.fixture
+def client(settings, config, repo, local_executor):
+    app = create_app(settings, repo=repo, executor=local_executor, config=config)
+    with TestClient(app) as c:
+        yield c
+
+
+def _wait(client, job_id, timeout=30.0):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        j = client.get(f"/jobs/{job_id}").json()
+        if j["status"] in ("converged", "stopped", "failed", "cancelled"):
+            return j
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not finish: {j}")
+
+
+def _submit(client, spec, **kw):
+    r = client.post("/jobs", json=spec if not kw else {"spec": spec, **kw})
+    assert r.status_code == 202, r.text
+    assert r.headers["location"].endswith(f"/jobs/{r.json()['id']}")
+    return r.json()["id"]
+
+
+def test_job_lifecycle_library_and_interpolation(client):
+    a = _submit(client, bend_spec("bend_a", 0.3), seed=1)
+    b = _submit(client, bend_spec("bend_b", 0.5))
+    ja, jb = _wait(client, a), _wait(client, b)
+    assert ja["status"] == "stopped" and ja["stop_rule"] == "max_evaluations"
+    assert ja["cmrt_id"] and jb["cmrt_id"] and ja["seed"] == 1
+
+    gens = client.get(f"/jobs/{a}/generations").json()
+    assert [g["iteration"] for g in gens["generations"]] == [0, 1, 2]
+    later = client.get(f"/jobs/{a}/generations?after=1").json()
+    assert [g["iteration"] for g in later["generations"]] == [2] and later["last"] == 2
+    ev = client.get(f"/jobs/{a}/evaluations").json()["generations"]
+    assert all(g["done"] == g["population"] and g["repeated"] == 0 for g in ev)
+
+    found = client.get("/cmrts", params={"family": "bend", "duration": 0.3}).json()
+    assert found["total"] == 1 and found["items"][0]["id"] == ja["cmrt_id"]
+    near = client.get("/cmrts", params={"family": "bend", "duration": 0.45,
+                                        "tolerance": 0.1}).json()
+    assert [c["id"] for c in near["items"]] == [jb["cmrt_id"]]
+    assert client.get("/cmrts", params={"family": "bend", "duration": 0.45}).json()["total"] == 0
+    one = client.get(f"/cmrts/{ja['cmrt_id']}").json()
+    assert one["task_parameters"] == {"duration": 0.3} and one["source"]["job_id"] == a
+    assert len(one["curve"]["t"]) == len(one["curve"]["dx"]) > 10
+
+    mid = client.get("/cmrts/interpolate", params={"family": "bend", "duration": 0.4})
+    assert mid.status_code == 200, mid.text
+    m = mid.json()
+    assert {n["id"] for n in m["neighbours"]} == {ja["cmrt_id"], jb["cmrt_id"]}
+    assert m["weight"] == pytest.approx(0.5) and not m["extrapolated"]
+    out = client.get("/cmrts/interpolate", params={"family": "bend", "duration": 0.7})
+    assert out.status_code == 422 and "extrapolate" in out.json()["detail"]
+    ext = client.get("/cmrts/interpolate", params={"family": "bend", "duration": 0.6,
+                                                   "extrapolate": "true"})
+    assert ext.status_code == 200 and ext.json()["extrapolated"]
+
+    listed = client.get("/jobs", params={"status": "stopped", "family": "bend", "limit": 1})
+    assert listed.json()["total"] == 2 and len(listed.json()["items"]) == 1
+    assert client.get("/jobs", params={"status": "bogus"}).status_code == 422
+
+
+def test_basis_and_reduced_space_job(client):
+    ids = [_submit(client, bend_spec(f"bend_{i}", d)) for i, d in enumerate((0.3, 0.4, 0.5))]
+    for i in ids:
+        _wait(client, i)
+    r = client.post("/bases", json={"family": "bend", "k": 2})
+    assert r.status_code == 201, r.text
+    basis = r.json()
+    assert basis["k"] == 2 and len(basis["members"]) == 3
+    assert client.get(f"/bases/{basis['id']}").json()["id"] == basis["id"]
+    j = _submit(client, bend_spec("bend_pca", 0.35), basis=basis["id"])
+    job = _wait(client, j)
+    assert job["status"] == "stopped" and job["basis_id"] == basis["id"]
+    assert len(job["best_params"]) == 8  # full spline params, searched in 2 dimensions
+    assert client.post("/bases", json={"family": "nope", "k": 2}).status_code == 422
+    assert client.post("/bases", json={"family": "bend", "k": 0}).status_code == 422
+    bad = client.post("/jobs", json={"spec": bend_spec(), "basis": "missing"})
+    assert bad.status_code == 422 and "basis" in bad.json()["detail"]
+
+
+def test_cancel(client):
+    j = _submit(client, bend_spec(max_evaluations=100000, min_evaluations=100000))
+    time.sleep(0.3)
+    r = client.post(f"/jobs/{j}/cancel")
+    assert r.status_code == 202
+    assert _wait(client, j)["status"] == "cancelled"
+    assert client.post(f"/jobs/{j}/cancel").status_code == 409
+    assert client.get("/cmrts", params={"family": "bend"}).json()["total"] == 0
+    assert client.post("/jobs/nope/cancel").status_code == 404
+
+
+@pytest.mark.parametrize(
+    ("body", "status", "needle"),
+    [
+        (b"{not json", 400, "malformed JSON"),
+        (b"", 400, "empty"),
+        (b'{"name": "x", "task": "quiet_stance", "clip": {"duration": NaN}}', 400, "NaN"),
+        (json.dumps({**bend_spec(), "task": "juggle"}).encode(), 422, "task"),
+        (json.dumps({**bend_spec(), "clip": {"duration": -1}}).encode(), 422, "clip.duration"),
+        (json.dumps({**bend_spec(), "typo": 1}).encode(), 422, "typo"),
+        (json.dumps({**bend_spec(), "task": "sequence", "pose_change": None, "motions": [
+            {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 40}).encode(),
+         422, "motions"),
+        (json.dumps({"spec": bend_spec(), "seed": -1}).encode(), 422, "seed"),
+        (json.dumps({"spec": bend_spec(), "colour": 1}).encode(), 422, "colour"),
+        (b"[1, 2]", 422, "mapping"),
+        (b'{"name": "' + b"x" * 2_000_000 + b'"}', 413, "limit"),
+    ],
+)
+def test_bad_input_is_rejected_and_nothing_stored(client, body, status, needle):
+    r = client.post("/jobs", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == status, r.text
+    assert needle in r.json()["detail"]
+    assert client.get("/jobs").json()["total"] == 0
+
+
+def test_bad_queries(client):
+    assert client.get("/jobs/nope").status_code == 404
+    assert client.get("/cmrts/nope").status_code == 404
+    assert client.get("/bases/nope").status_code == 404
+    assert client.get("/cmrts", params={"family": "bend", "duration": "abc"}).status_code == 422
+    assert client.get("/cmrts", params={"duration": 0.3}).status_code == 422
+    r = client.get("/cmrts/interpolate", params={"family": "bend", "duration": "inf"})
+    assert r.status_code == 422 and "finite" in r.json()["detail"]
+    assert client.get("/cmrts/interpolate", params={"family": "bend"}).status_code == 422
+    assert client.get("/jobs/x/generations", params={"after": -5}).status_code == 422
+
+
+def test_health_openapi_dashboard(client):
+    h = client.get("/health")
+    assert h.status_code == 200 and h.json()["database"] == "ok"
+    paths = client.get("/openapi.json").json()["paths"]
+    for p in ("/jobs", "/jobs/{job_id}", "/jobs/{job_id}/generations", "/jobs/{job_id}/cancel",
+              "/cmrts", "/cmrts/{cmrt_id}", "/cmrts/interpolate", "/bases", "/bases/{basis_id}",
+              "/health"):
+        assert p in paths
+    page = client.get("/dashboard")
+    assert page.status_code == 200 and "/generations?after=" in page.text
+    assert "http://" not in page.text.replace("http://www.w3.org/2000/svg", "")
+    assert "https://" not in page.text

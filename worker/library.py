@@ -1,0 +1,130 @@
+"""Library operations on stored CMRTs: interpolation and PCA bases (store + optim glue, used
+by the API; no HTTP here)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from optim.errors import BasisError, InterpolationError
+from optim.interpolate import interpolate
+from optim.pca import DEFAULT_K, build_basis
+from optim.result import OptimizationResult
+from optim.spline import sample_curve
+from store import CmrtRecord, Repository
+
+#: Largest number of library CMRTs read for one interpolation or basis.
+MAX_MEMBERS = 10_000
+
+
+def record_to_result(rec: CmrtRecord) -> OptimizationResult:
+    """An OptimizationResult view of a library CMRT (for optim.interpolate / optim.pca)."""
+    if rec.spec is None:
+        raise InterpolationError(f"CMRT {rec.id} has no stored spec")
+    values = rec.values
+    vertical = None
+    if values and isinstance(values[0], list | tuple):
+        vertical = [float(v[1]) for v in values]
+        values = [float(v[0]) for v in values]
+    spec = dict(rec.spec)
+    spec["name"] = rec.id  # results are named by their library id in the answers
+    spec["family"] = rec.family
+    return OptimizationResult(
+        spec=spec,
+        dimension=len(rec.params),
+        params=[float(v) for v in rec.params],
+        length=rec.preparation + rec.duration + rec.decay,
+        knot_times=[float(v) for v in rec.knots],
+        values=[float(v) for v in values],
+        vertical_values=vertical,
+        curve=rec.curve,
+        objective=rec.objective,
+        fell=rec.fell,
+        baseline_objective=rec.objective_without if rec.objective_without is not None
+        else rec.objective,
+        baseline_fell=bool(rec.fell_without),
+        evaluations=0,
+        iterations=0,
+        stop_rule="library",
+        wall_seconds=0.0,
+        seed=0,
+    )
+
+
+def _family(repo: Repository, family: str) -> list[CmrtRecord]:
+    items, _ = repo.list_cmrts(family, limit=MAX_MEMBERS)
+    return [r for r in items if r.spec is not None]
+
+
+def interpolate_library(
+    repo: Repository,
+    family: str,
+    key: str,
+    value: float,
+    *,
+    filters: Mapping[str, float] | None = None,
+    extrapolate: bool = False,
+) -> dict[str, Any]:
+    """Interpolated CMRT of `family` at task parameter `key` = `value` among the library CMRTs
+    (optionally only those whose other task parameters equal `filters`)."""
+    members = _family(repo, family)
+    if filters:
+        members = [
+            r for r in members
+            if all(abs(r.task_parameters.get(k, np.nan) - v) <= 1e-9 * max(1.0, abs(v))
+                   for k, v in filters.items())
+        ]
+    members = [r for r in members if key in r.task_parameters]
+    if not members:
+        raise InterpolationError(f"no library CMRTs of family {family!r} with parameter {key!r}")
+    by_id = {r.id: r for r in members}
+    out = interpolate([record_to_result(r) for r in members], value, key=key,
+                      extrapolate=extrapolate)
+    spline = out.spline()
+    d = out.to_dict()
+    neighbours = []
+    for cid, v in ((out.lower, out.lower_value), (out.upper, out.upper_value)):
+        if neighbours and neighbours[0]["id"] == cid:
+            continue
+        r = by_id[cid]
+        neighbours.append({"id": cid, key: v, "objective": r.objective,
+                           "task_parameters": r.task_parameters})
+    return {
+        "family": family,
+        "key": key,
+        "value": value,
+        "weight": d["weight"],
+        "exact": d["exact"],
+        "extrapolated": d["extrapolated"],
+        "neighbours": neighbours,
+        "length": d["length"],
+        "knot_times": d["knot_times"],
+        "values": d["values"],
+        "vertical_values": d["vertical_values"],
+        "curve": sample_curve(spline),
+    }
+
+
+def build_library_basis(repo: Repository, family: str, k: int = DEFAULT_K) -> str:
+    """PCA basis of every library CMRT of `family`; stored, returns its id."""
+    members = _family(repo, family)
+    if not members:
+        raise BasisError(f"no library CMRTs of family {family!r}")
+    basis = build_basis([record_to_result(r) for r in members], k=k, family=family)
+    return repo.add_basis(
+        family=family,
+        k=basis.k,
+        mean=[float(v) for v in basis.mean],
+        components=[[float(v) for v in row] for row in basis.components],
+        variance_explained=[float(v) for v in basis.variance_explained],
+        members=[r.id for r in members],
+        box={
+            "score_lo": [float(v) for v in basis.score_lo],
+            "score_hi": [float(v) for v in basis.score_hi],
+            "margin": basis.margin,
+            "cmrt": basis.cmrt,
+            "content_id": basis.id,
+        },
+    )
