@@ -50,3 +50,16 @@ def test_evaluate_params_with_traces(tiny):
     ev = evaluate_params(tiny, flat_params(tiny), traces=True)
     assert ev.traces is not None and len(ev.traces.t) == ev.steps
     assert ev.objective == SimObjective(tiny)(None).objective
+
+
+def test_optimize_end_to_end_on_real_simulator(tiny):
+    from optim.executors import SerialExecutor
+    from optim.run import optimize
+
+    spec = tiny.model_copy(
+        update={"optimize": tiny.optimize.model_copy(update={"max_evaluations": 6, "popsize": 6})}
+    )
+    res = optimize(spec, SerialExecutor(), seed=1)
+    assert res.stop_rule == "max_evaluations" and res.evaluations == 6
+    assert res.baseline_objective == SimObjective(tiny)(None).objective
+    assert res.objective == min(h["best"] for h in res.history)
