@@ -9,7 +9,10 @@ objective is the 2-norm of e over the steps that had ground contact (metres).
 
 A fall ends the clip: a body other than a foot touching the ground, the CM below
 FALL_CM_FRACTION of its standing height, or the controller losing balance (its support wrench
-leaves the friction cone or its CoP the support: paper 3.1, "inevitably going to fall").
+stays outside the friction cone or its CoP outside the support for WRENCH_VIOLATION_LIMIT, or
+a heel or toe lifts FOOT_LIFT_LIMIT off the ground, or the wrench needs a pulling ground).
+Brief violations are tolerated: in ODE a fast bend whose inverse dynamics asked for a CoP beyond
+the toe for 60 ms stood (the paper hands over at once, "inevitably going to fall").
 The objective of a fall is `fall_penalty`: at least sqrt(steps) x the support length, more than
 any non-fall objective can be (|e| never exceeds the support length), and larger the earlier
 the fall, so every fall ranks worse than every non-fall and later falls rank better.
@@ -34,21 +37,26 @@ from sim.controller import (
     GainScheduler,
     MomentumController,
     PoseTrajectory,
-    support_wrench_ok,
 )
 from sim.dynamics import (
+    WRENCH_NO_NORMAL_FORCE,
+    WRENCH_OK,
+    WRENCH_REASONS,
     ModelArrays,
-    dynamics,
-    feet_terms,
+    checked_inverse_dynamics,
     forward_kinematics,
-    inverse_dynamics,
-    lowest_clearance,
+    step_model,
 )
 from sim.evaluation import Evaluation, Traces
 from sim.spec import TaskSpec
 from sim.world import DT, FRICTION_MU, World
 
 FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
+#: The controller has lost balance when its support wrench stays inadmissible this long (s)...
+WRENCH_VIOLATION_LIMIT = 0.25
+#: ... or when a heel or toe has lifted this high (m): the foot is rotating about an edge and
+#: the foot-fixed model no longer holds.
+FOOT_LIFT_LIMIT = 0.015
 MIN_CONTACT_FORCE = 1.0  # N: below this total normal force a step has no CP measurement
 CMRT_VELOCITY_STEP = 1e-3  # s, central difference for the CMRT's velocity
 
@@ -162,7 +170,7 @@ class Simulator:
         n_steps = self.steps
         w.reset(self.q0)
         self.controller.reset()
-        foot_of_point = np.repeat(ch.feet, 2)
+        foot_of_point = np.repeat(ch.feet, 2).tolist()
         cm_floor = FALL_CM_FRACTION * self.cm0[1]
         rec = traces
         if rec:
@@ -178,16 +186,15 @@ class Simulator:
         c_ref = (self.cm0[0], 0.0)
         cmrt_disp = (0.0, 0.0)
         k_done = 0
+        violation_steps = 0
+        margs = a.args() + (a.feet, a.sole_local, a.heel_local, a.toe_local, a.point_body,
+                            a.point_local, a.point_radius)
         for k in range(n_steps):
             t = k * DT
             q, qd = w.read_state()
-            M, h, alpha, p, o, omega, c, cd, A_L, A_H = dynamics(q, qd, *a.args())
-            Js, heel, toe, sole = feet_terms(alpha, p, o, a.path, a.feet, a.sole_local,
-                                             a.heel_local, a.toe_local, ch.ndof)
-            lo = float(heel[:, 0].min())
-            hi = float(toe[:, 0].max())
+            (M, h, c, cd, A_L, A_H, Js, pts, sole_x, lo, hi,
+             clearance) = step_model(q, qd, *margs)
             s = 0.5 * (lo + hi)
-            clearance, _ = lowest_clearance(alpha, p, a.point_body, a.point_local, a.point_radius)
             physical = None
             if clearance < 0.0:
                 physical = "body_contact"
@@ -199,21 +206,23 @@ class Simulator:
                 break
             if not lost:
                 if k % self.qp_every == 0:
+                    vel = (0.0, 0.0)
                     if cmrt is not None:
                         cmrt_disp = _as_pair(cmrt(t))
                         nxt = _as_pair(cmrt(t + CMRT_VELOCITY_STEP))
                         prv = _as_pair(cmrt(t - CMRT_VELOCITY_STEP))
                         vel = ((nxt[0] - prv[0]) / (2 * CMRT_VELOCITY_STEP), 0.0)
-                    else:
-                        vel = (0.0, 0.0)
                     c_ref = (s + cmrt_disp[0], cmrt_disp[1])
-                    qdd = self.controller.solve(t, q, qd, c, cd, A_L, A_H, Js, (lo, hi),
-                                                c_ref, vel)
-                else:
-                    qdd = self.controller.qdd
-                tau, f = inverse_dynamics(M, h, Js, qdd)
-                ok, _cop, why = support_wrench_ok(f, sole[:, 0], (lo, hi), FRICTION_MU)
-                if not ok:
+                    self.controller.solve(t, q, qd, c, cd, A_L, A_H, Js, (lo, hi), c_ref, vel)
+                tau, code, _cop = checked_inverse_dynamics(M, h, Js, self.controller.qdd,
+                                                           sole_x, lo, hi, FRICTION_MU)
+                violation_steps = violation_steps + 1 if code != WRENCH_OK else 0
+                why = None
+                if code == WRENCH_NO_NORMAL_FORCE or violation_steps * DT > WRENCH_VIOLATION_LIMIT:
+                    why = WRENCH_REASONS[code]
+                elif pts[:, 1].max() > FOOT_LIFT_LIMIT:
+                    why = "foot_lift"
+                if why is not None:
                     lost = True
                     fall_time, fall_reason = t, f"balance_lost:{why}"
                     if not rec:
@@ -224,9 +233,6 @@ class Simulator:
             w.apply_torques(tau)
             if self.push is not None and self.push[2] <= t < self.push[3]:
                 w.add_force(self.push[0], self.push[1])
-            pts = np.empty((2 * len(ch.feet), 2))
-            pts[0::2] = heel
-            pts[1::2] = toe
             w.make_contacts(pts, foot_of_point)
             w.step()
             fy, _fx, cop = w.contact_forces()

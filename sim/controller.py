@@ -22,7 +22,6 @@ F = Ldot_des - m g, the ground force that places the CoP there.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -195,27 +194,6 @@ class MomentumController:
         rhs = np.concatenate([g, np.zeros(k)])
         self.qdd = np.linalg.solve(K, rhs)[:n]
         return self.qdd
-
-
-def support_wrench_ok(f: np.ndarray, sole_x: np.ndarray, support: tuple[float, float],
-                      mu: float) -> tuple[bool, float, str]:
-    """Check the inverse dynamics' support wrench (per foot fx, fy, torque about the sole centre).
-
-    Returns (ok, implied CoP x, reason when not ok): the total normal force must be positive, the
-    total tangential force inside the friction cone, and the CoP inside the support.
-    """
-    fx = f[0::3]
-    fy = f[1::3]
-    tz = f[2::3]
-    fy_sum = float(fy.sum())
-    if fy_sum <= 0.0:
-        return False, math.nan, "no_normal_force"
-    cop = float((sole_x * fy + tz).sum()) / fy_sum
-    if abs(float(fx.sum())) > mu * fy_sum:
-        return False, cop, "friction_cone"
-    if not support[0] <= cop <= support[1]:
-        return False, cop, "cop_outside_support"
-    return True, cop, ""
 
 
 class FallController:

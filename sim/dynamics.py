@@ -237,3 +237,57 @@ def inverse_dynamics(M, h, Js, qdd):
     f = Jsr @ np.linalg.solve(A, r)
     tau = M[ROOT_DOF:] @ qdd + h[ROOT_DOF:] - np.ascontiguousarray(Js[:, ROOT_DOF:n]).T @ f
     return tau, f
+
+
+@njit(cache=True)
+def step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local, heel_local,
+               toe_local, point_body, point_local, point_radius):
+    """Everything the controller needs for one step, in one compiled call.
+
+    Returns (M, h, c, cd, A_L, A_H, Js, contact_points (2 nf, 2: heel, toe per foot),
+    sole_x (nf,), support back edge x, support front edge x, lowest outline clearance).
+    """
+    n = q.shape[0]
+    M, h, alpha, p, o, omega, c, cd, A_L, A_H = dynamics(q, qd, parent, a_par, a_chi, path,
+                                                        mass, inertia)
+    Js, heel, toe, sole = feet_terms(alpha, p, o, path, feet, sole_local, heel_local, toe_local, n)
+    nf = feet.shape[0]
+    pts = np.empty((2 * nf, 2))
+    lo = 1e9
+    hi = -1e9
+    for f in range(nf):
+        pts[2 * f] = heel[f]
+        pts[2 * f + 1] = toe[f]
+        lo = min(lo, heel[f, 0])
+        hi = max(hi, toe[f, 0])
+    clearance, _ = lowest_clearance(alpha, p, point_body, point_local, point_radius)
+    return M, h, c, cd, A_L, A_H, Js, pts, sole[:, 0].copy(), lo, hi, clearance
+
+
+#: Codes of `checked_inverse_dynamics`.
+WRENCH_OK, WRENCH_NO_NORMAL_FORCE, WRENCH_FRICTION_CONE, WRENCH_COP_OUTSIDE = 0, 1, 2, 3
+WRENCH_REASONS = ("", "no_normal_force", "friction_cone", "cop_outside_support")
+
+
+@njit(cache=True)
+def checked_inverse_dynamics(M, h, Js, qdd, sole_x, lo, hi, mu):
+    """`inverse_dynamics` with the support wrench checked:
+    positive total normal force, total tangential force inside the friction cone (mu), implied
+    CoP inside [lo, hi]. Returns (tau, code, cop)."""
+    tau, f = inverse_dynamics(M, h, Js, qdd)
+    nf = sole_x.shape[0]
+    fx = 0.0
+    fy = 0.0
+    mom = 0.0
+    for k in range(nf):
+        fx += f[3 * k]
+        fy += f[3 * k + 1]
+        mom += sole_x[k] * f[3 * k + 1] + f[3 * k + 2]
+    if fy <= 0.0:
+        return tau, WRENCH_NO_NORMAL_FORCE, np.nan
+    cop = mom / fy
+    if abs(fx) > mu * fy:
+        return tau, WRENCH_FRICTION_CONE, cop
+    if cop < lo or cop > hi:
+        return tau, WRENCH_COP_OUTSIDE, cop
+    return tau, WRENCH_OK, cop

@@ -133,8 +133,9 @@ class World:
     # ---- actuation and contacts ---------------------------------------------------------
     def apply_torques(self, tau: np.ndarray) -> None:
         """Hinge torques (N m, +t on the child), clamped to +-TORQUE_LIMIT."""
-        for j, t in zip(self.hinges, tau, strict=True):
-            j.addTorque(min(TORQUE_LIMIT, max(-TORQUE_LIMIT, float(t))))
+        for j, t in zip(self.hinges, np.clip(tau, -TORQUE_LIMIT, TORQUE_LIMIT).tolist(),
+                        strict=True):
+            j.addTorque(t)
 
     def add_force(self, b: int, fx: float, fy: float = 0.0) -> None:
         """An external force (N) at body b's CoM for the next step."""
@@ -143,14 +144,14 @@ class World:
     def make_contacts(self, points: np.ndarray, feet_of_points: np.ndarray) -> None:
         """Ground contacts at the given world points (k, 2) of the given foot bodies."""
         c = self._contact
-        for (px, py), b in zip(points, feet_of_points, strict=True):
+        for (px, py), b in zip(points.tolist(), feet_of_points, strict=True):
             if py > CONTACT_MARGIN:
                 continue
-            c.setContactGeomParams((float(px), float(py), 0.0), (0.0, 1.0, 0.0), float(-py))
+            c.setContactGeomParams((px, py, 0.0), (0.0, 1.0, 0.0), -py)
             j = ode.ContactJoint(self.world, self.contact_group, c)
-            j.attach(self.bodies[int(b)], ode.environment)
+            j.attach(self.bodies[b], ode.environment)
             j.setFeedback(True)
-            self.contacts.append((j, int(b), float(px)))
+            self.contacts.append((j, b, px))
 
     def contact_forces(self) -> tuple[float, float, float]:
         """After a step: total normal force, total tangential force (N) and the CoP x
