@@ -1,9 +1,10 @@
 """The optimisation loop: CMA-ES ask/tell over a spec's CMRT, with checkpoints and resume.
 
 `optimize(spec, executor, *, seed, ...)`:
-  1. Start: x0 (warm start, full params) or the flat spline; with a `basis` the search is over
-     the basis' box [0, 1]^k (x0 is projected into it; default the box centre) and candidates
-     are decoded to full params with the target's duration pinned (optim.pca).
+  1. Start (`initial_point`): x0 (warm start, full params) or the flat spline; with a `basis`
+     the search is over the basis' box [0, 1]^k (x0 is projected into it; default the box
+     centre) and candidates are decoded to full params with the target's duration pinned
+     (optim.pca).
   2. Each generation: ask, evaluate every candidate through `executor.map(objective, ...)`
      (generation barrier), tell, then atomically write the checkpoint (temp file, fsync,
      os.replace), then call `progress(stats)`; returning True from it stops with "cancelled".
@@ -101,6 +102,27 @@ def _resume(path: Path, meta: dict[str, Any]) -> tuple[CmaOptimizer, float]:
     return CmaOptimizer.loads(payload["optimizer"]), float(payload.get("wall_seconds", 0.0))
 
 
+def initial_point(
+    spec: TaskSpec,
+    *,
+    x0: Sequence[float] | np.ndarray | None = None,
+    basis: Basis | None = None,
+) -> np.ndarray:
+    """CMA-ES start in the search space used by `optimize` (use it in other drivers too).
+
+    Full space: x0 (checked, clipped into [0, 1]) or the flat spline. Reduced space: x0
+    projected into the basis box (`Basis.encode` at the spec's duration), or the box centre
+    (u = 0.5, about the family mean) when no x0 is given. Raises BasisError if the basis does
+    not fit the spec.
+    """
+    if basis is None:
+        return flat_params(spec) if x0 is None else check_params(spec, x0)
+    basis.check_spec(spec)
+    if x0 is None:
+        return np.full(basis.k, 0.5)
+    return basis.encode(check_params(spec, x0), spec.clip.duration)
+
+
 def optimize(
     spec: TaskSpec,
     executor: Executor,
@@ -121,24 +143,19 @@ def optimize(
     t0 = time.perf_counter()
     fn: Objective = objective if objective is not None else SimObjective(spec)
     ckpt = None if checkpoint is None else Path(checkpoint)
-    start_full = flat_params(spec) if x0 is None else check_params(spec, x0)
-
+    start = initial_point(spec, x0=x0, basis=basis)
     if basis is not None:
-        basis.check_spec(spec)
         duration = spec.clip.duration
         dim = basis.k
 
         def to_full(x: np.ndarray) -> np.ndarray:
             return basis.decode(x, duration)
 
-        start = None if x0 is None else basis.encode(start_full, duration)
     else:
         dim = spec.cmrt_dimension
 
         def to_full(x: np.ndarray) -> np.ndarray:
             return np.clip(np.asarray(x, dtype=float), 0.0, 1.0)
-
-        start = start_full
 
     meta = _checkpoint_meta(spec, seed, basis, dim)
     opt: CmaOptimizer | None = None
@@ -202,4 +219,11 @@ def optimize(
     )
 
 
-__all__ = ["CANCELLED", "CHECKPOINT_FORMAT", "load_checkpoint", "optimize", "save_checkpoint"]
+__all__ = [
+    "CANCELLED",
+    "CHECKPOINT_FORMAT",
+    "initial_point",
+    "load_checkpoint",
+    "optimize",
+    "save_checkpoint",
+]

@@ -134,3 +134,15 @@ def test_optimize_in_reduced_space(family, make_spec):
     assert again.params == res.params
     warm = optimize(spec, SerialExecutor(), seed=1, basis=b, objective=fn, x0=target)
     assert warm.basis_id == b.id
+
+
+def test_initial_point(family, make_spec):
+    from optim.run import initial_point
+    from optim.spline import flat_params
+
+    b = build_basis(family, k=3)
+    spec = make_spec(duration=0.6)
+    np.testing.assert_array_equal(initial_point(spec), flat_params(spec))
+    np.testing.assert_array_equal(initial_point(spec, basis=b), np.full(3, 0.5))
+    u = initial_point(spec, basis=b, x0=family_params(0.6))
+    assert u.shape == (3,) and np.all((u >= 0) & (u <= 1))
