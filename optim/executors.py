@@ -32,8 +32,10 @@ import numpy as np
 from optim.errors import EvaluationError
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
 
-#: Default wall-clock limit for one batch in a process pool, seconds (None = no limit).
-DEFAULT_BATCH_TIMEOUT_S: float | None = None
+#: Default wall-clock limit for one batch in a process pool, seconds: far above any real batch
+#: (a 20 s clip costs ~2 s of CPU; 200 of them on one worker ~400 s) so a hung worker cannot
+#: block a job forever. Pass timeout=None to disable.
+DEFAULT_BATCH_TIMEOUT_S: float | None = 1800.0
 #: Wall-clock limit for starting the pool's worker processes (imports), seconds.
 STARTUP_TIMEOUT_S = 120.0
 #: Start method of pool workers: "spawn" (no forked threads or ODE state; works everywhere).
