@@ -1,0 +1,248 @@
+"""The `cmrt` command line: simulate, optimize, bench, pca, interpolate, serve, worker.
+
+Domain errors become one clear message on stderr and exit status 2; nothing is written then.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+EXIT_BAD_INPUT = 2
+
+
+def _die(msg: str) -> int:
+    print(f"cmrt: error: {msg}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4f}" if math.isfinite(v) else str(v)
+    return str(v)
+
+
+# ---- simulate ---------------------------------------------------------------------------------
+def _sequence_cmrt(spec: Any, base: Path) -> Any:
+    """Superpose the CMRTs the motions of a sequence spec name (paper 4.2, Figure 4)."""
+    from optim.result import OptimizationResult
+    from optim.superpose import superpose
+
+    parts = []
+    for m in spec.motions or []:
+        if m.cmrt is None:
+            continue
+        path = Path(m.cmrt)
+        res = OptimizationResult.load(path if path.is_absolute() else base / path)
+        # The result's clip started its task at its preparation time; shift it to the motion.
+        parts.append((m.start - res.task_spec.clip.task_start, res.spline))
+    return superpose(parts) if parts else None
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from optim.result import OptimizationResult
+    from sim import load_spec
+    from sim.clip import Simulator
+
+    spec = load_spec(args.spec)
+    cmrt = None
+    source = "none"
+    if args.cmrt:
+        res = OptimizationResult.load(args.cmrt)
+        cmrt = res.spline
+        source = args.cmrt
+    elif not args.zero and spec.task == "sequence":
+        cmrt = _sequence_cmrt(spec, Path(args.spec).parent)
+        source = "superposed" if cmrt is not None else "none"
+    sim = Simulator(spec)
+    t0 = time.perf_counter()
+    try:
+        ev = sim.run(cmrt, traces=bool(args.trace))
+    finally:
+        sim.close()
+    wall = time.perf_counter() - t0
+    if args.trace:
+        ev.traces.to_csv(args.trace)
+    out = {"spec": spec.name, "cmrt": source, **ev.to_dict(), "wall_seconds": wall}
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k in ("spec", "cmrt", "objective", "fell", "fall_time", "fall_reason",
+                  "error_norm", "max_abs_error", "sim_seconds", "cpu_seconds"):
+            print(f"{k:>14}: {_fmt(out[k])}")
+    return 0
+
+
+# ---- optimize ---------------------------------------------------------------------------------
+def cmd_optimize(args: argparse.Namespace) -> int:
+    from optim.executors import PoolExecutor, SerialExecutor
+    from optim.pca import Basis
+    from optim.result import OptimizationResult
+    from optim.run import optimize
+    from sim import load_spec
+
+    spec = load_spec(args.spec)
+    basis = Basis.load(args.basis) if args.basis else None
+    x0 = OptimizationResult.load(args.warm_start).params_array if args.warm_start else None
+    out = Path(args.out) if args.out else Path("results") / f"{spec.name}.json"
+    ckpt = Path(args.checkpoint) if args.checkpoint else out.with_suffix(".ckpt")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+
+    def progress(st: Any) -> None:
+        line = (f"\rgen {st.iteration:4d}  evals {st.evaluations:5d}  best {st.best_so_far:9.4f}  "
+                f"sigma {st.sigma:7.4f}  {time.perf_counter() - t0:7.1f} s")
+        print(line, end="", file=sys.stderr, flush=True)
+
+    executor = SerialExecutor() if args.workers <= 1 else PoolExecutor(args.workers)
+    try:
+        res = optimize(spec, executor, seed=args.seed, x0=x0, checkpoint=ckpt,
+                       resume=args.resume, progress=progress, basis=basis)
+    finally:
+        executor.close()
+    print(file=sys.stderr)
+    res.save(out)
+    summary = {
+        "spec": spec.name, "out": str(out), "objective": res.objective, "fell": res.fell,
+        "baseline_objective": res.baseline_objective, "baseline_fell": res.baseline_fell,
+        "evaluations": res.evaluations, "iterations": res.iterations,
+        "stop_rule": res.stop_rule, "wall_seconds": res.wall_seconds,
+    }
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for k, v in summary.items():
+            print(f"{k:>18}: {_fmt(v)}")
+    return 0
+
+
+# ---- pca / interpolate ------------------------------------------------------------------------
+def cmd_pca(args: argparse.Namespace) -> int:
+    from optim.pca import build_basis
+    from optim.result import OptimizationResult
+
+    results = [OptimizationResult.load(p) for p in args.results]
+    basis = build_basis(results, k=args.k)
+    basis.save(args.out)
+    ve = ", ".join(f"{v:.3f}" for v in basis.variance_explained)
+    print(f"basis {basis.id} of {basis.family!r}: k={basis.k}, variance explained [{ve}]"
+          f" -> {args.out}")
+    return 0
+
+
+def cmd_interpolate(args: argparse.Namespace) -> int:
+    from optim.interpolate import interpolate
+    from optim.result import OptimizationResult
+
+    results = [OptimizationResult.load(p) for p in args.results]
+    interp = interpolate(results, args.at, key=args.param, extrapolate=args.extrapolate)
+    data = interp.to_dict()
+    if args.out:
+        Path(args.out).write_text(json.dumps(data, indent=2))
+    print(json.dumps(data if args.json else {k: v for k, v in data.items() if k != "curve"}))
+    return 0
+
+
+# ---- bench ------------------------------------------------------------------------------------
+def cmd_bench(args: argparse.Namespace) -> int:
+    from sim.bench import run_bench
+
+    report = run_bench(seconds=args.seconds)
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for k, v in report.items():
+            print(f"{k:>34}: {_fmt(v)}")
+    return 0
+
+
+# ---- serve / worker ---------------------------------------------------------------------------
+def cmd_serve(args: argparse.Namespace) -> int:
+    from service.cli import serve_main
+
+    return serve_main(args.rest)
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    from worker.cli import worker_main
+
+    return worker_main(args.rest)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cmrt", description="Anticipatory balance: CMRT service")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="simulate a task spec and print its objective")
+    s.add_argument("spec")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--zero", action="store_true", help="no CMRT (the reactive controller alone)")
+    g.add_argument("--cmrt", metavar="RESULT.json", help="replay an optimised CMRT")
+    s.add_argument("--json", action="store_true")
+    s.add_argument("--trace", metavar="OUT.csv", help="write per-step traces")
+    s.set_defaults(func=cmd_simulate)
+
+    o = sub.add_parser("optimize", help="optimise the CMRT of a task spec with CMA-ES")
+    o.add_argument("spec")
+    o.add_argument("--workers", type=int, default=2)
+    o.add_argument("--seed", type=int, default=1)
+    o.add_argument("--out", metavar="RESULT.json")
+    o.add_argument("--checkpoint", metavar="PATH", help="default: the --out path with .ckpt")
+    o.add_argument("--resume", action="store_true", help="continue from the checkpoint")
+    o.add_argument("--basis", metavar="BASIS.json", help="optimise in a PCA-reduced space")
+    o.add_argument("--warm-start", metavar="RESULT.json", help="start from an earlier result")
+    o.add_argument("--json", action="store_true")
+    o.set_defaults(func=cmd_optimize)
+
+    b = sub.add_parser("bench", help="CPU seconds per simulated second, controller vs raw ODE")
+    b.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per case")
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(func=cmd_bench)
+
+    c = sub.add_parser("pca", help="build a PCA basis from a family of results")
+    c.add_argument("results", nargs="+")
+    c.add_argument("--k", type=int, default=3)
+    c.add_argument("--out", required=True)
+    c.set_defaults(func=cmd_pca)
+
+    i = sub.add_parser("interpolate", help="interpolate a CMRT at a task parameter value")
+    i.add_argument("results", nargs="+")
+    i.add_argument("--at", type=float, required=True)
+    i.add_argument("--param", default="duration")
+    i.add_argument("--extrapolate", action="store_true")
+    i.add_argument("--out")
+    i.add_argument("--json", action="store_true", help="print the sampled curve too")
+    i.set_defaults(func=cmd_interpolate)
+
+    for name, fn, hlp in (("serve", cmd_serve, "run the HTTP API (embedded default)"),
+                          ("worker", cmd_worker, "run a Celery worker")):
+        x = sub.add_parser(name, help=hlp, add_help=False)
+        x.add_argument("rest", nargs=argparse.REMAINDER)
+        x.set_defaults(func=fn)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from optim.errors import OptimError
+    from sim.errors import SimError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (SimError, OptimError) as err:
+        return _die(str(err))
+    except FileNotFoundError as err:
+        return _die(f"{err.filename}: no such file")
+    except KeyboardInterrupt:
+        print("\ncmrt: interrupted; the checkpoint holds every finished generation",
+              file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
