@@ -56,7 +56,7 @@ FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
 WRENCH_VIOLATION_LIMIT = 0.25
 #: ... or when a heel or toe has lifted this high (m): the foot is rotating about an edge and
 #: the foot-fixed model no longer holds.
-FOOT_LIFT_LIMIT = 0.015
+FOOT_LIFT_LIMIT = 0.03
 MIN_CONTACT_FORCE = 1.0  # N: below this total normal force a step has no CP measurement
 CMRT_VELOCITY_STEP = 1e-3  # s, central difference for the CMRT's velocity
 
