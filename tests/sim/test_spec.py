@@ -1,0 +1,182 @@
+"""Task specs: the examples load; bad specs raise SpecError naming the field and the rule."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from sim.errors import SpecError
+from sim.spec import TaskSpec, load_spec, parse_spec
+
+EXAMPLES_DIR = Path(__file__).resolve().parents[2] / "examples"
+EXAMPLES = sorted(EXAMPLES_DIR.glob("*.yaml"))
+
+
+def _load(name: str) -> dict:
+    return yaml.safe_load((EXAMPLES_DIR / f"{name}.yaml").read_text())
+
+
+def test_examples_present():
+    names = {p.stem for p in EXAMPLES}
+    assert {"quiet_stance", "push", "slow_bend", "fast_bend"} <= names
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+def test_example_loads(path):
+    spec = load_spec(path)
+    assert isinstance(spec, TaskSpec)
+    assert spec.clip.length > 0
+    assert spec.cmrt_dimension == 2 * spec.cmrt.knots
+
+
+def test_example_contents():
+    push = load_spec(EXAMPLES_DIR / "push.yaml")
+    assert push.task == "push" and push.push.force == 100.0
+    assert push.push_window() == (1.0, 0.2)  # defaults to the task window
+    assert push.task_parameters() == {"duration": 0.2, "force": 100.0}
+    fast = load_spec(EXAMPLES_DIR / "fast_bend.yaml")
+    slow = load_spec(EXAMPLES_DIR / "slow_bend.yaml")
+    assert fast.pose_change.target == slow.pose_change.target
+    assert fast.clip.duration < slow.clip.duration
+    # A schedule without start/end covers the task window.
+    for path in EXAMPLES:
+        spec = load_spec(path)
+        for entry in spec.schedule:
+            if entry.start is None and entry.end is None:
+                assert spec.schedule_window(entry) == (spec.clip.task_start, spec.clip.task_end)
+
+
+def _unknown_joint(d):
+    d["pose_change"]["target"]["wrist"] = 10.0
+    return "slow_bend", "pose_change.target", "unknown joint 'wrist'"
+
+
+def _joint_out_of_range(d):
+    d["pose_change"]["target"]["waist"] = -200.0
+    return "slow_bend", "pose_change.target", "outside [-180, 180]"
+
+
+def _negative_duration(d):
+    d["clip"]["duration"] = -0.5
+    return "slow_bend", "clip.duration", "greater than 0"
+
+
+def _negative_decay(d):
+    d["clip"]["decay"] = -1.0
+    return "slow_bend", "clip.decay", "greater than or equal to 0"
+
+
+def _clip_too_long(d):
+    d["clip"] = {"preparation": 10.0, "duration": 10.0, "decay": 10.0}
+    return "slow_bend", "clip", "exceeds 20 s"
+
+
+def _unknown_top_field(d):
+    d["colour"] = "red"
+    return "slow_bend", "colour", "Extra inputs are not permitted"
+
+
+def _unknown_nested_field(d):
+    d["clip"]["prep"] = 1.0
+    return "slow_bend", "clip.prep", "Extra inputs are not permitted"
+
+
+def _missing_push_block(d):
+    del d["push"]
+    return "push", "push", "task 'push' needs a 'push' block"
+
+
+def _push_block_on_bend(d):
+    d["push"] = {"force": 50.0}
+    return "slow_bend", "push", "'push' is not allowed for task 'pose_change'"
+
+
+def _push_past_clip_end(d):
+    d["push"]["start"] = 2.9  # + 0.2 s default duration > 3.0 s clip
+    return "push", "push", "start + duration exceeds the clip length"
+
+
+def _push_duration_past_end(d):
+    d["push"]["start"] = 1.0
+    d["push"]["duration"] = 2.5
+    return "push", "push", "start + duration exceeds the clip length"
+
+
+def _negative_force(d):
+    d["push"]["force"] = -100.0
+    return "push", "push.force", "greater than 0"
+
+
+def _unknown_gain_in_schedule(d):
+    d["schedule"] = [{"scale": {"k_t": 2.0, "k_x": 2.0}, "ramp": 0.05}]
+    return "slow_bend", "schedule.0.scale", "unknown gain 'k_x'"
+
+
+def _unknown_gain_in_controller(d):
+    d["controller"] = {"kl": 20.0}
+    return "slow_bend", "controller", "unknown gain 'kl'"
+
+
+def _schedule_end_before_start(d):
+    d["schedule"] = [{"scale": {"k_t": 2.0}, "start": 1.3, "end": 1.2}]
+    return "slow_bend", "schedule[0]", "end must be after start"
+
+
+def _bad_name(d):
+    d["name"] = "has space"
+    return "slow_bend", "name", "should match pattern"
+
+
+def _unknown_task(d):
+    d["task"] = "walk"
+    return "slow_bend", "task", "Input should be"
+
+
+BAD_SPECS = [
+    _unknown_joint, _joint_out_of_range, _negative_duration, _negative_decay, _clip_too_long,
+    _unknown_top_field, _unknown_nested_field, _missing_push_block, _push_block_on_bend,
+    _push_past_clip_end, _push_duration_past_end, _negative_force, _unknown_gain_in_schedule,
+    _unknown_gain_in_controller, _schedule_end_before_start, _bad_name, _unknown_task,
+]
+
+
+@pytest.mark.parametrize("mutate", BAD_SPECS, ids=lambda f: f.__name__.strip("_"))
+def test_bad_spec_names_field_and_rule(mutate):
+    # Each mutator edits the dict it is given and returns (the example it expects, the field,
+    # the rule); a first dry run on a throwaway dict of every example finds which one.
+    for name in ("slow_bend", "push"):
+        data = _load(name)
+        try:
+            example, field, rule = mutate(data)
+        except (KeyError, IndexError):
+            continue
+        if example == name:
+            break
+    else:  # pragma: no cover
+        pytest.fail("the mutation applies to no example")
+    with pytest.raises(SpecError) as info:
+        parse_spec(data, source="bad.yaml")
+    msg = str(info.value)
+    assert msg.startswith("bad.yaml: "), msg
+    assert field in msg, msg
+    assert rule in msg, msg
+    # SpecError is a ValueError for callers that only know the standard library.
+    assert isinstance(info.value, ValueError)
+    # The unmodified example is valid: the error is the mutation's.
+    parse_spec(_load(example))
+
+
+def test_non_mapping_and_unreadable(tmp_path):
+    with pytest.raises(SpecError, match="a spec must be a mapping, got list"):
+        parse_spec([1, 2])
+    with pytest.raises(SpecError, match="cannot read spec"):
+        load_spec(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: [unclosed\n")
+    with pytest.raises(SpecError, match="not valid YAML"):
+        load_spec(bad)
+    js = tmp_path / "s.json"
+    js.write_text('{"name": "q", "task": "quiet_stance", "clip": {"duration": 1.0}}')
+    assert load_spec(js).clip.length == 3.0  # default preparation 1 s and decay 1 s
