@@ -6,16 +6,17 @@ executor returns once every one of them is resolved (done or failed).
   (`optim.executors.PoolExecutor`) and upserts the results itself; attempts are counted the same
   way, so a candidate that kills its pool process fails its job after `max_attempts`.
 - `CeleryExecutor`: sends one `evaluate_candidate(job_id, generation, index)` task per pending
-  candidate and waits by polling the store's counts (never `.get()`); when nothing of the
-  generation finished for `stall_timeout` s it sends the unresolved ones again (idempotent), so a
-  message lost with a broker restart never hangs a job; if the broker stays unreachable for
-  `broker_deadline` s the job fails with a clear error.
+  candidate and waits by polling the store's counts (never `.get()`); lost messages are sent
+  again (idempotent, see `CeleryExecutor.evaluate`), so a message lost with a broker restart or
+  a killed worker never hangs a job; if the broker stays unreachable for `broker_deadline` s the
+  job fails with a clear error.
 """
 
 from __future__ import annotations
 
 import logging
 import socket
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -152,6 +153,8 @@ class CeleryExecutor(GenerationExecutor):
         self.sent = 0
         self.resent = 0
         self._errors = _broker_errors()
+        self._lock = threading.Lock()
+        self._last_progress = time.monotonic()
 
     # -- broker ------------------------------------------------------------------------------
     def _send(
@@ -194,28 +197,58 @@ class CeleryExecutor(GenerationExecutor):
             conn.ensure_connection(max_retries=1, timeout=timeout)
 
     # -- generation ----------------------------------------------------------------------------
+    def _progress(self) -> None:
+        with self._lock:
+            self._last_progress = time.monotonic()
+
     def evaluate(self, repo, job_id, spec_data, generation, population, check):
+        """Send the unresolved candidates and wait for the store to hold all their results.
+
+        Lost messages are sent again (idempotent tasks) in two cases: (1) stall: no evaluation
+        of any job driven here finished for `stall_timeout` s (so workers are idle or gone while
+        this generation is unresolved: the queue lost its messages, e.g. a broker restart
+        without persistence, or a worker died with them); (2) overdue: a candidate is unresolved
+        `visibility_timeout + task_time_limit` s after it was sent, by which time Redis would
+        have re-delivered an unacknowledged message anyway.
+        """
         rows = repo.evaluations(job_id, generation)
         unresolved = [r.index for r in rows if r.status == PENDING]
         self._send(job_id, generation, unresolved, check)
+        sent_at = dict.fromkeys(unresolved, time.monotonic())
+        last_send = time.monotonic()
         resolved = population - len(unresolved)
-        last_progress = time.monotonic()
+        overdue_after = self.config.visibility_timeout + self.config.task_time_limit
         while True:
             counts = repo.evaluation_counts(job_id, generation)
             if counts.resolved >= population:
+                if counts.resolved > resolved:
+                    self._progress()
                 return repo.evaluations(job_id, generation)
             now = time.monotonic()
             if counts.resolved > resolved:
-                resolved, last_progress = counts.resolved, now
-            elif now - last_progress > self.config.stall_timeout:
+                resolved = counts.resolved
+                self._progress()
+            with self._lock:
+                quiet = now - max(self._last_progress, last_send)
+            overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
+            if quiet > self.config.stall_timeout or overdue:
                 rows = repo.evaluations(job_id, generation)
-                again = [r.index for r in rows if r.status == PENDING]
-                log.warning(
-                    "job %s generation %d: no progress for %.0f s; sending %d unresolved "
-                    "evaluations again", job_id, generation, now - last_progress, len(again))
-                self._send(job_id, generation, again, check)
-                self.resent += len(again)
-                last_progress = time.monotonic()
+                pending = {r.index for r in rows if r.status == PENDING}
+                again = sorted(pending if quiet > self.config.stall_timeout
+                               else pending.intersection(overdue))
+                if again:
+                    log.warning(
+                        "job %s generation %d: %s; sending %d unresolved evaluations again",
+                        job_id, generation,
+                        f"no evaluation finished for {quiet:.0f} s" if not overdue
+                        else f"{len(overdue)} overdue", len(again))
+                    self._send(job_id, generation, again, check)
+                    self.resent += len(again)
+                last_send = time.monotonic()
+                sent_at.update(dict.fromkeys(again, last_send))
+                for i in list(sent_at):
+                    if i not in pending:
+                        del sent_at[i]
             check()
             time.sleep(self.config.poll_interval)
 

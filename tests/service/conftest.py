@@ -13,19 +13,6 @@ from worker.config import WorkerConfig
 from worker.executors import LocalPoolExecutor
 
 
-def bend_spec(name: str = "bend_a", duration: float = 0.3, **optimize) -> dict:
-    opt = {"popsize": 4, "max_evaluations": 12, "min_evaluations": 0}
-    opt.update(optimize)
-    return {
-        "name": name,
-        "family": "bend",
-        "task": "pose_change",
-        "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
-        "pose_change": {"target": {"waist": -30}},
-        "optimize": opt,
-    }
-
-
 @pytest.fixture
 def settings(tmp_path):
     return Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/t.db",

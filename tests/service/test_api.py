@@ -6,8 +6,8 @@ import json
 import time
 
 import pytest
-from conftest import bend_spec
 from fastapi.testclient import TestClient
+from svc_helpers import bend_spec
 
 from service.app import create_app
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 
 import pytest
-from conftest import bend_spec
+from svc_helpers import bend_spec
 
 from optim.executors import EvalOutcome, SerialExecutor
 from optim.synthetic import Sphere

@@ -1,0 +1,123 @@
+"""The running topology (see harness.py): started once per test session."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+from harness import Topology
+
+#: Short timeouts so faults resolve in seconds (production defaults: docker-compose.yml).
+OVERRIDES = {
+    "CMRT_LEASE_SECONDS": "3",
+    "CMRT_STALL_TIMEOUT": "6",
+    "CMRT_VISIBILITY_TIMEOUT": "60",
+    "CMRT_EVAL_TIME_LIMIT": "20",
+    "CMRT_BROKER_DEADLINE": "45",
+    "CMRT_MAX_ATTEMPTS": "3",
+    "CMRT_SCAN_INTERVAL": "0.5",
+    "CMRT_POLL_INTERVAL": "0.1",
+    "CMRT_WORKER_CONCURRENCY": "1",
+    "CMRT_LOG_LEVEL": "INFO",
+}
+#: Fault-injection hook of the workers (worker/faults.py): candidate 1 of generation 0 of any
+#: job whose spec is named "poison" kills its worker process on every attempt.
+WORKER_FAULTS = {"CMRT_FAULT_CRASH_ON": "poison:0:1"}
+
+
+@pytest.fixture(scope="session")
+def topology():
+    work = Path(tempfile.mkdtemp(prefix="cmrt-it-"))
+    topo = Topology(work, overrides=dict(OVERRIDES))
+    try:
+        topo.start_redis()
+        topo.create_database()
+        topo.warm_up()
+        topo.start("worker", WORKER_FAULTS)
+        topo.start("worker", WORKER_FAULTS)
+        topo.start("api")
+        topo.wait_workers_ready(2)
+        yield topo
+    except BaseException:
+        print(topo.logs())
+        raise
+    finally:
+        topo.stop_all()
+        topo.drop_database()
+        if os.environ.get("CMRT_IT_KEEP_LOGS") is None:
+            import shutil
+
+            shutil.rmtree(work, ignore_errors=True)
+
+
+@pytest.fixture
+def api(topology):
+    with httpx.Client(base_url=topology.url(""), timeout=10) as c:
+        yield c
+
+
+@pytest.fixture(autouse=True)
+def _logs_on_failure(request, topology):
+    yield
+    rep = getattr(request.node, "rep_call", None)
+    if rep is not None and rep.failed:
+        print(topology.logs())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    rep = outcome.get_result()
+    if rep.when == "call":
+        item.rep_call = rep
+
+
+def bend(name: str, duration: float = 0.3, **optimize) -> dict:
+    """A short bend clip (~0.8 s of simulation per candidate)."""
+    opt = {"popsize": 4, "max_evaluations": 8, "min_evaluations": 0, "sigma0": 0.15}
+    opt.update(optimize)
+    return {
+        "name": name,
+        "family": "it_bend",
+        "task": "pose_change",
+        "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
+        "pose_change": {"target": {"waist": -30, "shoulder_r": 30, "shoulder_l": 30}},
+        "optimize": opt,
+    }
+
+
+def submit(api: httpx.Client, spec: dict, seed: int = 1) -> str:
+    r = api.post("/jobs", json={"spec": spec, "seed": seed})
+    assert r.status_code == 202, r.text
+    return r.json()["id"]
+
+
+def wait_job(api: httpx.Client, job_id: str, timeout: float = 120, until=None) -> dict:
+    """Poll until the job is finished (or `until(job)` holds); fail after `timeout` s."""
+    t0 = time.monotonic()
+    job: dict = {}
+    while time.monotonic() - t0 < timeout:
+        try:
+            job = api.get(f"/jobs/{job_id}").json()
+        except httpx.HTTPError:
+            time.sleep(0.3)
+            continue
+        if (until(job) if until else job["status"] in
+                ("converged", "stopped", "failed", "cancelled")):
+            return job
+        time.sleep(0.2)
+    raise AssertionError(f"job {job_id} not done after {timeout} s: {job}")
+
+
+def bookkeeping(api: httpx.Client, job_id: str) -> dict:
+    """Evaluations expected, stored once (done), lost, repeated attempts, failed."""
+    gens = api.get(f"/jobs/{job_id}/evaluations").json()["generations"]
+    pop = sum(g["population"] for g in gens)
+    done = sum(g["done"] for g in gens)
+    return {"expected": pop, "done": done, "lost": pop - done - sum(g["failed"] for g in gens),
+            "failed": sum(g["failed"] for g in gens),
+            "repeated": sum(g["repeated"] for g in gens), "per_generation": gens}

@@ -1,0 +1,290 @@
+"""Starts the services that docker-compose.yml names, for the topology tests.
+
+Where a Docker engine answers, `docker compose` runs the file itself (project `cmrt-it`).
+Otherwise each application service's own `command` and `environment` from the compose file run
+as local processes (in their own process group, so `kill -9` takes the whole service like a
+container dying), against:
+  - redis:    the compose service's command run locally by `redis-server` on a free port
+              (a private instance, so the tests may restart it without touching anyone else's);
+  - postgres: the machine's PostgreSQL server (CMRT_IT_PG, default
+              postgresql+psycopg://postgres@127.0.0.1:5432/test) with a fresh database per run.
+Host names in the compose URLs (redis, postgres) are rewritten to these local addresses; the
+`python` of the commands is this interpreter. Logs go to the run's temporary folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+COMPOSE = ROOT / "docker-compose.yml"
+PG_ADMIN_URL = os.environ.get("CMRT_IT_PG", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::?-([^}]*))?\}")
+
+
+def interpolate(value: str, env: dict[str, str]) -> str:
+    """Compose-style ${VAR:-default} substitution."""
+    return _VAR.sub(lambda m: env.get(m.group(1)) or (m.group(2) or ""), str(value))
+
+
+def docker_available() -> bool:
+    if shutil.which("docker") is None:
+        return False
+    try:
+        return subprocess.run(["docker", "info"], capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+@dataclass
+class Proc:
+    name: str
+    argv: list[str]
+    env: dict[str, str]
+    log: Path
+    popen: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        fh = open(self.log, "ab")  # noqa: SIM115 - owned by the child
+        fh.write(f"\n=== start {' '.join(self.argv)} ===\n".encode())
+        fh.flush()
+        self.popen = subprocess.Popen(self.argv, env=self.env, cwd=ROOT, stdout=fh,
+                                      stderr=subprocess.STDOUT, start_new_session=True)
+
+    @property
+    def alive(self) -> bool:
+        return self.popen is not None and self.popen.poll() is None
+
+    def kill9(self) -> None:
+        """SIGKILL the whole process group (the service and its children), like a container
+        being killed."""
+        if self.popen is None:
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        self.popen.wait(timeout=10)
+
+    def stop(self) -> None:
+        if not self.alive:
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.popen.pid, signal.SIGTERM)
+        try:
+            self.popen.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.kill9()
+
+    def tail(self, n: int = 40) -> str:
+        try:
+            return "\n".join(self.log.read_text(errors="replace").splitlines()[-n:])
+        except OSError:
+            return ""
+
+    def busy(self) -> bool:
+        """True if the worker's log shows a task received and not finished yet."""
+        lines = [ln for ln in self.tail(20).splitlines() if "Task cmrt." in ln]
+        return bool(lines) and lines[-1].rstrip().endswith("received")
+
+    def children(self) -> list[int]:
+        """Pids of this service's processes other than the leader (e.g. Celery pool children)."""
+        if self.popen is None:
+            return []
+        out = subprocess.run(["pgrep", "-g", str(self.popen.pid)], capture_output=True, text=True)
+        return [int(p) for p in out.stdout.split() if int(p) != self.popen.pid]
+
+
+@dataclass
+class Topology:
+    """The compose topology as local processes (see module docstring)."""
+
+    workdir: Path
+    overrides: dict[str, str] = field(default_factory=dict)
+    compose: dict = field(default_factory=dict)
+    procs: dict[str, list[Proc]] = field(default_factory=dict)
+    redis_port: int = 0
+    api_port: int = 0
+    database: str = ""
+    database_url: str = ""
+    mode: str = "local"
+
+    def __post_init__(self) -> None:
+        self.compose = yaml.safe_load(COMPOSE.read_text())
+        self.workdir.mkdir(parents=True, exist_ok=True)
+
+    # -- infrastructure ----------------------------------------------------------------------
+    def _service(self, name: str) -> dict:
+        return self.compose["services"][name]
+
+    def start_redis(self) -> None:
+        argv = [interpolate(a, {}) for a in self._service("redis")["command"]]
+        if not shutil.which(argv[0]):
+            raise RuntimeError(f"{argv[0]} not found: install redis-server for the topology tests")
+        self.redis_port = self.redis_port or free_port()
+        data = self.workdir / "redis"
+        data.mkdir(exist_ok=True)
+        argv += ["--port", str(self.redis_port), "--bind", "127.0.0.1", "--dir", str(data),
+                 "--save", ""]
+        p = Proc("redis", argv, dict(os.environ), self.workdir / "redis.log")
+        p.start()
+        self.procs["redis"] = [p]
+        self._wait(lambda: _redis_ping(self.redis_port), "redis", 15)
+
+    def stop_redis(self, wipe: bool = False) -> None:
+        for p in self.procs.pop("redis", []):
+            p.kill9()
+        if wipe:
+            shutil.rmtree(self.workdir / "redis", ignore_errors=True)
+
+    def create_database(self) -> None:
+        import sqlalchemy as sa
+
+        self.database = f"cmrt_it_{uuid.uuid4().hex[:10]}"
+        admin = sa.create_engine(PG_ADMIN_URL, isolation_level="AUTOCOMMIT")
+        with admin.connect() as c:
+            c.execute(sa.text(f'CREATE DATABASE "{self.database}"'))
+        admin.dispose()
+        self.database_url = PG_ADMIN_URL.rsplit("/", 1)[0] + "/" + self.database
+        from store import init_db
+
+        init_db(self.database_url).dispose()
+
+    def drop_database(self) -> None:
+        if not self.database:
+            return
+        import sqlalchemy as sa
+
+        admin = sa.create_engine(PG_ADMIN_URL, isolation_level="AUTOCOMMIT")
+        with admin.connect() as c:
+            c.execute(sa.text(f'DROP DATABASE IF EXISTS "{self.database}" WITH (FORCE)'))
+        admin.dispose()
+
+    # -- application services ----------------------------------------------------------------
+    def env_for(self, name: str, extra: dict[str, str] | None = None) -> dict[str, str]:
+        env = dict(os.environ)
+        env.pop("CMRT_FAULT_CRASH_ON", None)
+        for k, v in (self._service(name).get("environment") or {}).items():
+            env[k] = interpolate(v, {**self.overrides})
+        redis = f"redis://127.0.0.1:{self.redis_port}"
+        for k, v in list(env.items()):
+            if isinstance(v, str) and "redis://redis:6379" in v:
+                env[k] = v.replace("redis://redis:6379", redis)
+        env["CMRT_DATABASE_URL"] = self.database_url
+        env.update(self.overrides)
+        env.update(extra or {})
+        env.pop("NUMBA_CACHE_DIR", None)  # use the checkout's warm cache (see warm_up)
+        env["PYTHONUNBUFFERED"] = "1"
+        env["CMRT_DATA_DIR"] = str(self.workdir / "data")
+        return env
+
+    def argv_for(self, name: str, env: dict[str, str]) -> list[str]:
+        argv = [interpolate(a, env) for a in self._service(name)["command"]]
+        if argv[0] in ("python", "python3"):
+            argv[0] = sys.executable
+        if name == "api":
+            self.api_port = self.api_port or free_port()
+            argv = _set_opt(argv, "--port", str(self.api_port))
+            argv = _set_opt(argv, "--host", "127.0.0.1")
+        return argv
+
+    def start(self, name: str, extra: dict[str, str] | None = None) -> Proc:
+        env = self.env_for(name, extra)
+        n = len(self.procs.get(name, []))
+        p = Proc(f"{name}-{n}", self.argv_for(name, env), env, self.workdir / f"{name}-{n}.log")
+        if name == "worker":
+            p.argv += ["--hostname", f"worker{n}-{uuid.uuid4().hex[:4]}@%h"]
+        p.start()
+        self.procs.setdefault(name, []).append(p)
+        if name == "api":
+            self._wait(self._api_ready, "api", 60, p)
+        return p
+
+    def warm_up(self) -> None:
+        """Compile/load the simulator's numba cache once, before workers time anything."""
+        code = ("from sim.spec import parse_spec; from optim.objective import SimObjective; "
+                "from optim.spline import flat_params; import json, sys; "
+                "s = parse_spec(json.loads(sys.argv[1])); SimObjective(s)(flat_params(s))")
+        spec = {"name": "warm", "task": "quiet_stance", "clip": {"preparation": 0.0,
+                "duration": 0.1, "decay": 0.0}}
+        import json
+
+        subprocess.run([sys.executable, "-c", code, json.dumps(spec)], cwd=ROOT, check=True,
+                       env=self.env_for("worker"), timeout=600)
+
+    def wait_workers_ready(self, count: int, timeout: float = 60) -> None:
+        """Until `count` worker processes logged that they are ready."""
+        def ready() -> bool:
+            n = 0
+            for p in self.procs.get("worker", []):
+                last_run = p.log.read_text(errors="replace").split("=== start")[-1]
+                if p.alive and " ready." in last_run:
+                    n += 1
+            return n >= count
+        self._wait(ready, f"{count} workers", timeout)
+
+    def _api_ready(self) -> bool:
+        try:
+            return httpx.get(self.url("/health"), timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    def url(self, path: str) -> str:
+        return f"http://127.0.0.1:{self.api_port}{path}"
+
+    def _wait(self, ok, what: str, timeout: float, proc: Proc | None = None) -> None:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            if ok():
+                return
+            if proc is not None and not proc.alive:
+                raise RuntimeError(f"{what} exited:\n{proc.tail()}")
+            time.sleep(0.2)
+        raise RuntimeError(f"{what} not ready after {timeout} s:\n"
+                           + (proc.tail() if proc else ""))
+
+    def stop_all(self) -> None:
+        for name in ("api", "worker"):
+            for p in self.procs.get(name, []):
+                p.stop()
+        self.stop_redis()
+
+    def logs(self) -> str:
+        return "\n".join(f"--- {p.name} ---\n{p.tail(60)}"
+                         for ps in self.procs.values() for p in ps)
+
+
+def _set_opt(argv: list[str], opt: str, value: str) -> list[str]:
+    if opt in argv:
+        i = argv.index(opt)
+        return argv[: i + 1] + [value] + argv[i + 2:]
+    return argv + [opt, value]
+
+
+def _redis_ping(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=1) as s:
+            s.sendall(b"PING\r\n")
+            return s.recv(16).startswith(b"+PONG")
+    except OSError:
+        return False
