@@ -10,6 +10,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -228,6 +229,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # pycma warns on import when matplotlib is absent; plotting is not part of this tool.
+    warnings.filterwarnings("ignore", message="Could not import matplotlib")
     from optim.errors import OptimError
     from sim.errors import SimError
 
