@@ -39,6 +39,7 @@ from sim.controller import (
     PoseTrajectory,
 )
 from sim.dynamics import (
+    GRAVITY,
     WRENCH_NO_NORMAL_FORCE,
     WRENCH_OK,
     WRENCH_REASONS,
@@ -49,7 +50,7 @@ from sim.dynamics import (
 )
 from sim.evaluation import Evaluation, Traces
 from sim.spec import TaskSpec
-from sim.world import DT, FRICTION_MU, World
+from sim.world import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, World
 
 FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
 #: The controller has lost balance when its support wrench stays inadmissible this long (s)...
@@ -132,6 +133,12 @@ class Simulator:
         self.arrays = ModelArrays.from_character(ch)
         self.world = World(ch, self.arrays)
         self.q0 = standing_state(ch, self.arrays)
+        # Start with the ground contacts already loaded: sink the body by the static
+        # penetration of a soft contact, depth = (m g / contacts) / k with the contact
+        # stiffness k = ERP / (dt CFM); otherwise the first steps score a loading transient.
+        contacts = 2 * len(ch.feet)
+        k_contact = WORLD_ERP / (DT * CONTACT_SOFT_CFM)
+        self.q0[1] -= ch.total_mass * GRAVITY / contacts / k_contact
         _, p0, _ = forward_kinematics(self.q0, self.arrays.parent, self.arrays.a_par,
                                       self.arrays.a_chi)
         self.cm0 = (ch.mass[:, None] * p0).sum(axis=0) / ch.mass.sum()

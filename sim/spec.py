@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from sim.errors import SpecError
 
-#: Hinge names of the planar humanoid, in generalised-coordinate order after the 3 root DOF.
+#: Hinge names of the planar humanoid (the coordinate order is the character file's).
 HINGE_NAMES: tuple[str, ...] = (
     "hip_r", "knee_r", "ankle_r", "hip_l", "knee_l", "ankle_l",
     "waist", "neck", "shoulder_r", "elbow_r", "shoulder_l", "elbow_l",
