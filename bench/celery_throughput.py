@@ -131,7 +131,8 @@ def celery(spec, batch, warm, workers: int, scratch: _Scratch) -> tuple[float, d
     ex = CeleryExecutor(cfg, app)
     log = open(scratch.dir / f"worker{workers}.log", "wb")  # noqa: SIM115
     proc = subprocess.Popen([sys.executable, "-m", "worker", "--concurrency", str(workers),
-                             "--loglevel", os.environ.get("CMRT_BENCH_LOGLEVEL", "WARNING"), "--hostname", f"bench{workers}@%h"],
+                             "--loglevel", os.environ.get("CMRT_BENCH_LOGLEVEL", "WARNING"),
+                             "--hostname", f"bench{workers}@%h"],
                             cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
                             start_new_session=True)
     try:
