@@ -35,6 +35,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from optim.cmaes import CmaOptimizer, StopRules
 from optim.pca import Basis
+from optim.run import initial_point
 from optim.spline import decode, flat_params, sample_curve
 from sim.errors import SpecError
 from sim.spec import TaskSpec, parse_spec
@@ -221,7 +222,7 @@ class JobDriver:
             generation = latest.iteration + 1
             log.info("job %s: resuming after generation %d", self.job_id, latest.iteration)
         else:
-            x0 = None if basis is None else basis.encode(flat_params(spec), spec.clip.duration)
+            x0 = initial_point(spec, basis=basis)  # the same start rule as `cmrt optimize`
             opt = CmaOptimizer(
                 dim,
                 seed=int(job.seed if job.seed is not None else 0),
