@@ -133,9 +133,11 @@ class World:
     # ---- actuation and contacts ---------------------------------------------------------
     def apply_torques(self, tau: np.ndarray) -> None:
         """Hinge torques (N m, +t on the child), clamped to +-TORQUE_LIMIT."""
-        for j, t in zip(self.hinges, np.clip(tau, -TORQUE_LIMIT, TORQUE_LIMIT).tolist(),
-                        strict=True):
-            j.addTorque(t)
+        lim = TORQUE_LIMIT
+        # Python min/max on the listed floats: the same clamp as np.clip, without its ~9 us
+        # per-step call overhead (this runs every 1 ms step).
+        for j, t in zip(self.hinges, tau.tolist(), strict=True):
+            j.addTorque(min(max(t, -lim), lim))
 
     def add_force(self, b: int, fx: float, fy: float = 0.0) -> None:
         """An external force (N) at body b's CoM for the next step."""

@@ -1,0 +1,181 @@
+"""The bend family (paper Figure 3 and Table 2's protocol): optimise, interpolate, reduce.
+
+    .venv/bin/python bench/bend_family.py [--out results/bend_family] [--workers 2] [--seed 1]
+        [--durations 0.4 0.6 0.8 1.0 1.2] [--between 0.5 0.7] [--leave-out 0.6 0.8 1.0] [--k 3]
+
+Every member is the fast bend of `examples/fast_bend.yaml` (same pose, gain schedule and CMRT
+settings) with task duration T and decay 1.6 - T, so the clip stays 2.6 s with a 1 s
+preparation, as the paper's slow (T = 1.2) and fast (T = 0.4) bends. Optimisations run without
+the early-exit threshold, to convergence (the paper's slow-convergence rule, 700 evaluations
+minimum, or a cap of `--max-evaluations`), so that objectives are comparable.
+
+1. Full-space CMA-ES for every T in --durations and --between (results saved as JSON in --out
+   and reused when the script runs again, so a killed run loses only the optimisation in hand).
+2. Interpolation (paper 4.2): for every T in --between, the CMRT interpolated from the
+   --durations results only, simulated at T, against the CMRT optimised at T (target: within
+   15 %).
+3. PCA (Table 2's protocol): for every T in --leave-out, a basis of the other --durations
+   results (k components), a reduced-space optimisation of T under the same stopping rules, and
+   the objective against the full-space one (target: within 5 %) and the speed-up in
+   evaluations. Two speed-ups are printed: evaluations until the stopping rule fired (bounded
+   below by the rule's 700-evaluation minimum), and evaluations until the best reached within
+   1 % of that run's final best ("to converge"; the paper's itr columns are below its 100-
+   iteration window, so they count convergence, not the rule).
+Prints markdown tables (for docs/benchmarks.md); --json prints the raw numbers instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from optim.executors import PoolExecutor  # noqa: E402
+from optim.interpolate import interpolate  # noqa: E402
+from optim.objective import SimObjective  # noqa: E402
+from optim.pca import build_basis  # noqa: E402
+from optim.result import OptimizationResult  # noqa: E402
+from optim.run import optimize  # noqa: E402
+from optim.spline import flat_params  # noqa: E402
+from sim.spec import TaskSpec, parse_spec  # noqa: E402
+
+TEMPLATE = ROOT / "examples" / "fast_bend.yaml"
+ACTIVE_SECONDS = 1.6  # s, task + decay: the clip stays preparation + 1.6 s for every T
+CONVERGED_WITHIN = 0.01  # "converged" = best within 1 % of the run's final best
+
+
+def member_spec(duration: float, max_evaluations: int) -> TaskSpec:
+    data = yaml.safe_load(TEMPLATE.read_text())
+    data["name"] = f"bend_T{duration:g}"
+    data["family"] = "bend"
+    data["clip"] = {
+        "preparation": data["clip"]["preparation"],
+        "duration": duration,
+        "decay": round(ACTIVE_SECONDS - duration, 6),
+    }
+    data["optimize"] = {"max_evaluations": max_evaluations}  # no threshold: run to convergence
+    return parse_spec(data, f"bend family T = {duration:g}")
+
+
+def evaluations_to_converge(result: OptimizationResult) -> int:
+    final = result.history[-1]["best_so_far"]
+    for h in result.history:
+        if h["best_so_far"] <= final * (1.0 + CONVERGED_WITHIN):
+            return int(h["evaluations"])
+    return int(result.evaluations)
+
+
+def run_or_load(path: Path, spec: TaskSpec, pool: PoolExecutor, seed: int, basis=None,
+                log=print) -> OptimizationResult:
+    if path.exists():
+        return OptimizationResult.load(path)
+    t0 = time.perf_counter()
+    res = optimize(spec, pool, seed=seed, basis=basis, checkpoint=path.with_suffix(".ckpt"),
+                   resume=True)
+    res.save(path)
+    path.with_suffix(".ckpt").unlink(missing_ok=True)
+    log(f"  {path.name}: {res.objective:.4f} (flat {res.baseline_objective:.4f}), "
+        f"{res.evaluations} evaluations, {res.stop_rule}, {time.perf_counter() - t0:.0f} s")
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--out", type=Path, default=ROOT / "results" / "bend_family")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--durations", type=float, nargs="+", default=[0.4, 0.6, 0.8, 1.0, 1.2])
+    p.add_argument("--between", type=float, nargs="*", default=[0.5, 0.7])
+    p.add_argument("--leave-out", type=float, nargs="*", default=[0.6, 0.8, 1.0])
+    p.add_argument("--k", type=int, default=3)
+    p.add_argument("--max-evaluations", type=int, default=1500)
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
+    report: dict = {"members": [], "interpolation": [], "pca": []}
+
+    with PoolExecutor(args.workers) as pool:
+        full: dict[float, OptimizationResult] = {}
+        for T in sorted(set(args.durations) | set(args.between)):
+            spec = member_spec(T, args.max_evaluations)
+            full[T] = run_or_load(args.out / f"full_T{T:g}.json", spec, pool, args.seed, log=log)
+            r = full[T]
+            report["members"].append({
+                "T": T, "flat": r.baseline_objective, "optimised": r.objective, "fell": r.fell,
+                "evaluations": r.evaluations, "converged_at": evaluations_to_converge(r),
+                "stop_rule": r.stop_rule, "wall_seconds": r.wall_seconds,
+            })
+
+        samples = [full[T] for T in args.durations]
+        for T in args.between:
+            spec = member_spec(T, args.max_evaluations)
+            interp = interpolate(samples, T, key="duration")
+            fn = SimObjective(spec)
+            out_i, out_flat = pool.map(fn, [interp.params(spec), flat_params(spec)])
+            opt = full[T].objective
+            report["interpolation"].append({
+                "T": T, "between": [interp.lower_value, interp.upper_value],
+                "flat": out_flat.objective, "interpolated": out_i.objective,
+                "interpolated_fell": out_i.fell, "optimised": opt,
+                "excess": out_i.objective / opt - 1.0,
+            })
+
+        for T in args.leave_out:
+            members = [full[d] for d in args.durations if d != T]
+            basis = build_basis(members, k=args.k)
+            spec = member_spec(T, args.max_evaluations)
+            red = run_or_load(args.out / f"reduced_k{args.k}_T{T:g}.json", spec, pool,
+                              args.seed, basis=basis, log=log)
+            fr = full[T]
+            report["pca"].append({
+                "T": T, "k": args.k, "members": [m.name for m in members],
+                "variance_explained_k": float(np.sum(basis.variance_explained[: args.k])),
+                "reduced": red.objective, "reduced_fell": red.fell,
+                "reduced_evaluations": red.evaluations,
+                "reduced_converged_at": evaluations_to_converge(red),
+                "full": fr.objective, "full_evaluations": fr.evaluations,
+                "full_converged_at": evaluations_to_converge(fr),
+                "relative_error": red.objective / fr.objective - 1.0,
+                "speedup_rule": fr.evaluations / red.evaluations,
+                "speedup_converged": evaluations_to_converge(fr) / evaluations_to_converge(red),
+            })
+
+    if args.json:
+        print(json.dumps(report, indent=1))
+        return 0
+    print("\n| T (s) | flat | optimised | evaluations (converged at) | stop rule | wall (s) |")
+    print("|---|---|---|---|---|---|")
+    for m in report["members"]:
+        print(f"| {m['T']:g} | {m['flat']:.4f} | {m['optimised']:.4f}"
+              f"{' (fell)' if m['fell'] else ''} | {m['evaluations']} ({m['converged_at']}) | "
+              f"{m['stop_rule']} | {m['wall_seconds']:.0f} |")
+    print("\n| T (s) | from | flat | interpolated | optimised at T | excess (target <= 15 %) |")
+    print("|---|---|---|---|---|---|")
+    for r in report["interpolation"]:
+        lo, hi = r["between"]
+        print(f"| {r['T']:g} | {lo:g}, {hi:g} | {r['flat']:.4f} | {r['interpolated']:.4f}"
+              f"{' (fell)' if r['interpolated_fell'] else ''} | {r['optimised']:.4f} | "
+              f"{r['excess']:+.1%} |")
+    print("\n| left out T (s) | k | var. explained | reduced (evals, converged at) | "
+          "full (evals, converged at) | rel. error (target <= 5 %) | speed-up rule / converged |")
+    print("|---|---|---|---|---|---|---|")
+    for r in report["pca"]:
+        print(f"| {r['T']:g} | {r['k']} | {r['variance_explained_k']:.1%} | {r['reduced']:.4f} "
+              f"({r['reduced_evaluations']}, {r['reduced_converged_at']}) | {r['full']:.4f} "
+              f"({r['full_evaluations']}, {r['full_converged_at']}) | "
+              f"{r['relative_error']:+.1%} | {r['speedup_rule']:.2f}x / "
+              f"{r['speedup_converged']:.2f}x |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
