@@ -145,6 +145,28 @@ class EvaluationOutcome:
 
 
 @dataclass(frozen=True)
+class EvaluationClaim:
+    """What `claim_evaluation` found: what a worker needs to run one candidate (or skip it).
+
+    `status` and `attempts` are the evaluation's after the claim: a `pending` status means this
+    claim counted an attempt (`attempts` includes it); `done` / `failed` means nothing was
+    counted and the work must be skipped. `job_status` is the job's status at the same moment.
+    """
+
+    job_id: str
+    generation: int
+    index: int
+    status: str
+    attempts: int
+    params: list[float] | None
+    job_status: str
+
+    @property
+    def job_terminal(self) -> bool:
+        return self.job_status in TERMINAL_STATUSES
+
+
+@dataclass(frozen=True)
 class CmrtRecord:
     id: str
     family: str

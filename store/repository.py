@@ -13,10 +13,13 @@ Typical job flow (see design.md, "Jobs"):
    lease with `renew_driver_lease` and gives it up when the lease is lost.
 3. driver, each generation g: ask candidates (from `latest_generation(job).optimizer_state`, or
    a fresh optimizer for g = 0); `put_pending_evaluations(job, g, candidates)`; dispatch.
-4. worker, per candidate: `rec = start_attempt(job, g, i)`; if `rec.status != "pending"` skip;
-   if `rec.attempts > max_attempts` -> `fail_evaluation(...)`; else evaluate and
-   `record_evaluation(...)`. The returned outcome's `changed and counts.resolved == popsize`
-   is true for exactly one write per generation: that write closes the generation.
+4. worker, per candidate: `c = claim_evaluation(job, g, i)`; if `c.status != "pending"` or
+   `c.job_terminal` skip; if `c.attempts > max_attempts` -> `fail_evaluation(...)`; else
+   evaluate `c.params` and `store_result(...)` (first result wins). The driver polls
+   `evaluation_counts(job, g)` until every evaluation is resolved. (`start_attempt` and
+   `record_evaluation` are the same steps in finer pieces; `record_evaluation`'s outcome also
+   tells its caller whether it was the one write that resolved the generation's last
+   evaluation: `changed and counts.resolved == popsize`.)
 5. closing a generation: tell the optimizer the objectives of `evaluations(job, g)` and
    `record_generation(job, g, ...)` before asking g + 1 (idempotent: if another process closed
    it first, continue from the stored record's optimizer_state).
@@ -29,11 +32,12 @@ from __future__ import annotations
 import abc
 import math
 import uuid
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import Engine, func, or_, select, update
+from sqlalchemy import Connection, Engine, bindparam, case, func, or_, select, update
 from sqlalchemy.orm import Session, undefer
 
 from store.db import session_scope
@@ -51,6 +55,7 @@ from store.records import (
     TRANSITIONS,
     BasisRecord,
     CmrtRecord,
+    EvaluationClaim,
     EvaluationOutcome,
     EvaluationRecord,
     GenerationCounts,
@@ -214,6 +219,52 @@ class Repository(abc.ABC):
         so `outcome.counts` are exact: exactly one write per generation has `changed` and
         `counts.resolved` equal to the population. A missing row is created (attempts 1).
         Raises NotFound for an unknown job; ValueError for a NaN objective.
+        """
+
+    @abc.abstractmethod
+    def claim_evaluation(self, job_id: str, generation: int, index: int) -> EvaluationClaim:
+        """A worker's start on one candidate, in one atomic step: count one more attempt if
+        the evaluation is pending and return its status, attempts and params together with
+        the job's status (`EvaluationClaim`).
+
+        Same counting rules as `start_attempt`: an evaluation no longer pending (done or
+        failed) is returned as it is with nothing counted (the caller skips the work); the
+        caller compares `attempts` with its limit and calls `fail_evaluation` when it is
+        exceeded, and skips the work when `job_terminal`. The attempt is visible to every
+        other process as soon as this returns (a worker killed right after loses nothing).
+        Durability on PostgreSQL: committed asynchronously (see `SqlRepository`): only a crash
+        of the database server itself may forget the last fraction of a second of attempts.
+        Raises NotFound when the evaluation does not exist (unknown job included).
+        """
+
+    @abc.abstractmethod
+    def store_result(
+        self,
+        job_id: str,
+        generation: int,
+        index: int,
+        *,
+        objective: float | None,
+        fell: bool | None,
+        cpu_seconds: float | None,
+        error: str | None = None,
+        details: Mapping[str, Any] | None = None,
+    ) -> bool:
+        """Store a worker's result of an existing evaluation: `record_evaluation` without the
+        generation counts, for callers that do not need them (the driver polls
+        `evaluation_counts` itself).
+
+        Status `done`, or `failed` when `error` is given. First result wins, atomically: only
+        a pending evaluation is changed, and True is returned only by the write that moved
+        it out of `pending`; a repeated or late write changes nothing and returns False.
+        `params` are kept, `attempts` too (raised to 1 if no attempt was counted). Unlike
+        `record_evaluation` it neither serialises on the job nor creates a missing row.
+        The result is visible to every other process as soon as this returns. Durability on
+        PostgreSQL: committed asynchronously (see `SqlRepository`): a crash of the database
+        server itself may turn the last fraction of a second of results back to pending
+        (they are evaluated again), never one that a later commit depended on.
+        Raises NotFound when the evaluation does not exist; ValueError for a NaN objective or
+        a missing objective without `error`.
         """
 
     def fail_evaluation(
@@ -432,19 +483,84 @@ def _exact_eps(v: float) -> float:
     return 1e-9 * max(1.0, abs(v))
 
 
+# ---- the workers' per-candidate statements, built once (see SqlRepository) ---------------
+_EV = Evaluation.__table__
+_EV_KEY = (
+    _EV.c.job_id == bindparam("p_job_id"),
+    _EV.c.generation == bindparam("p_generation"),
+    _EV.c.index == bindparam("p_index"),
+)
+_CLAIM_COLUMNS = (
+    _EV.c.status,
+    _EV.c.attempts,
+    _EV.c.params,
+    select(Job.__table__.c.status).where(Job.__table__.c.id == _EV.c.job_id).scalar_subquery(),
+)
+#: Count an attempt at a pending evaluation. One statement: the UPDATE's row lock makes the
+#: increment atomic, and a row that is no longer pending is not touched (no row returned).
+_CLAIM = (
+    update(_EV)
+    .where(*_EV_KEY, _EV.c.status == PENDING)
+    .values(attempts=_EV.c.attempts + 1, updated_at=bindparam("p_now"))
+    .returning(*_CLAIM_COLUMNS)
+)
+_CLAIM_LOOKUP = select(*_CLAIM_COLUMNS).where(*_EV_KEY)
+#: First result wins: only a pending row is updated; a concurrent writer of the same key waits
+#: for the row lock, then finds the row no longer pending (rowcount 0).
+_STORE_RESULT = (
+    update(_EV)
+    .where(*_EV_KEY, _EV.c.status == PENDING)
+    .values(
+        status=bindparam("p_status"),
+        objective=bindparam("p_objective"),
+        fell=bindparam("p_fell"),
+        cpu_seconds=bindparam("p_cpu_seconds"),
+        error=bindparam("p_error"),
+        details=bindparam("p_details"),
+        attempts=case((_EV.c.attempts < 1, 1), else_=_EV.c.attempts),
+        updated_at=bindparam("p_now"),
+    )
+)
+_EVALUATION_ID = select(_EV.c.id).where(*_EV_KEY)
+
+
 class SqlRepository(Repository):
     """`Repository` on SQLAlchemy (SQLite or PostgreSQL; engine from `store.db.make_engine`,
     schema from `store.db.init_db`). Thread-safe; use one per process.
 
-    `clock` returns the current aware UTC time (tests inject one to expire leases)."""
+    `clock` returns the current aware UTC time (tests inject one to expire leases).
+
+    The workers' per-candidate calls (`claim_evaluation`, `store_result`) are single Core
+    statements in one short transaction each (no ORM session, no job lock, no counts): they are
+    the store's share of every evaluation's cost. On PostgreSQL they commit with
+    `synchronous_commit = off`: the commit returns before its WAL record is flushed to disk, so
+    it is visible to every session at once and survives any client dying, but a crash of the
+    server itself (not a clean restart) may forget the last ~0.6 s of such commits
+    (3 x wal_writer_delay). That loses no told result: WAL is replayed in order, so a crash
+    forgets a suffix of the commit sequence, and every transaction that could depend on an
+    evaluation result (the driver's `record_generation`, made after it read the results) is
+    committed synchronously later, flushing all earlier WAL with it. A forgotten result is
+    pending again and evaluated again (the driver re-sends unresolved candidates); a forgotten
+    attempt only lets a candidate start once more. Everything else commits synchronously.
+    """
 
     def __init__(self, engine: Engine, *, clock: Clock = utcnow) -> None:
         self.engine = engine
         self._clock = clock
+        self._postgres = engine.dialect.name == "postgresql"
 
     # ---- helpers ------------------------------------------------------------------------
     def _write(self) -> Any:
         return session_scope(self.engine)
+
+    @contextmanager
+    def _evaluation_write(self) -> Iterator[Connection]:
+        """A Core connection in one write transaction for per-candidate writes; committed
+        asynchronously on PostgreSQL (see the class docstring)."""
+        with self.engine.begin() as conn:
+            if self._postgres:
+                conn.exec_driver_sql("SET LOCAL synchronous_commit = off")
+            yield conn
 
     def _read(self) -> Any:
         return session_scope(self.engine, read_only=True)
@@ -706,6 +822,40 @@ class SqlRepository(Repository):
             s.flush()
             counts = self._counts(s, job_id, generation)
             return EvaluationOutcome(_evaluation_record(ev), changed, counts)
+
+    def claim_evaluation(self, job_id, generation, index):
+        key = {"p_job_id": job_id, "p_generation": int(generation), "p_index": int(index)}
+        with self._evaluation_write() as conn:
+            row = conn.execute(_CLAIM, {**key, "p_now": self._clock()}).first()
+            if row is None:  # done, failed or missing: count nothing
+                row = conn.execute(_CLAIM_LOOKUP, key).first()
+                if row is None:
+                    raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
+        return EvaluationClaim(
+            job_id=job_id, generation=int(generation), index=int(index), status=row[0],
+            attempts=int(row[1]), params=row[2], job_status=row[3],
+        )  # fmt: skip
+
+    def store_result(
+        self, job_id, generation, index, *, objective, fell, cpu_seconds, error=None,
+        details=None,
+    ):  # fmt: skip
+        obj = _opt_num(objective, "objective")
+        status = DONE if error is None else EVAL_FAILED
+        if status == DONE and obj is None:
+            raise ValueError("objective is required unless an error is given")
+        key = {"p_job_id": job_id, "p_generation": int(generation), "p_index": int(index)}
+        values = {
+            "p_status": status, "p_objective": obj, "p_fell": None if fell is None else bool(fell),
+            "p_cpu_seconds": _opt_num(cpu_seconds, "cpu_seconds"), "p_error": error,
+            "p_details": _json(details, "details"), "p_now": self._clock(),
+        }  # fmt: skip
+        with self._evaluation_write() as conn:
+            if conn.execute(_STORE_RESULT, {**key, **values}).rowcount == 1:
+                return True
+            if conn.execute(_EVALUATION_ID, key).first() is None:
+                raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
+            return False
 
     def get_evaluation(self, job_id, generation, index):
         with self._read() as s:

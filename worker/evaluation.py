@@ -1,13 +1,16 @@
 """One candidate evaluation against the store: the body of the Celery task (and of the local
 pool path's bookkeeping).
 
-Idempotent and attempt-counted:
-  1. `start_attempt` atomically counts an attempt at the pending (job, generation, index) row;
-     a row already done or failed is skipped (a duplicate or re-delivered message costs nothing);
+Idempotent and attempt-counted, with two store calls per candidate:
+  1. `claim_evaluation` atomically counts an attempt at the pending (job, generation, index)
+     row and returns its params with the job's status; a row already done or failed is skipped
+     (a duplicate or re-delivered message costs nothing), and so is a candidate of a job that
+     has finished meanwhile (cancelled or failed);
   2. past `max_attempts` the evaluation is failed with a clear error instead of run again (a
      candidate that kills its worker every time fails its job instead of looping);
-  3. the objective runs (one simulator per process, cached per spec by optim.objective);
-  4. `record_evaluation` upserts the small result keyed by (job, generation, index): the first
+  3. the objective runs (one simulator per process and job: `SpecCache`, which reads the job's
+     spec from the store only on a miss);
+  4. `store_result` upserts the small result keyed by (job, generation, index): the first
      result wins, a repeated one changes nothing.
 An exception inside the objective is a property of the candidate (deterministic): it is stored as
 `done` with the worst objective (optim's FAILED_OBJECTIVE) and the error in `details`, so CMA-ES
@@ -27,7 +30,7 @@ import numpy as np
 from optim.executors import EvalOutcome, evaluate_one
 from sim.spec import TaskSpec, parse_spec
 from store import NotFound, Repository
-from store.records import PENDING
+from store.records import DONE, PENDING
 from worker import faults
 
 log = logging.getLogger(__name__)
@@ -75,7 +78,8 @@ class SpecCache:
 
 
 def outcome_fields(out: EvalOutcome, worker: str | None = None) -> dict[str, Any]:
-    """record_evaluation keyword arguments for an objective outcome (see module docstring)."""
+    """store_result / record_evaluation keyword arguments for an objective outcome (see the
+    module docstring)."""
     details: dict[str, Any] = {}
     if out.error is not None:
         details["error"] = out.error
@@ -101,28 +105,27 @@ def run_candidate(
 ) -> dict[str, Any]:
     """Evaluate one stored candidate and upsert its result; returns a small JSON dict."""
     try:
-        rec = repo.start_attempt(job_id, generation, index)
+        claim = repo.claim_evaluation(job_id, generation, index)
     except NotFound:
         return {"status": "missing"}
-    if rec.status != PENDING:
-        return {"status": rec.status, "skipped": True}
-    if rec.attempts > max_attempts:
-        msg = attempts_exhausted_message(generation, index, rec.attempts - 1)
+    if claim.status != PENDING:
+        return {"status": claim.status, "skipped": True}
+    if claim.attempts > max_attempts:
+        msg = attempts_exhausted_message(generation, index, claim.attempts - 1)
         repo.fail_evaluation(job_id, generation, index, msg)
         log.error("job %s: %s", job_id, msg)
-        return {"status": "failed", "attempts": rec.attempts}
-    job = repo.get_job(job_id)
-    if job.terminal:  # cancelled or failed meanwhile: don't spend CPU on it
-        return {"status": "skipped", "job_status": job.status}
-    spec, objective = cache.get(repo, job_id, job.spec)
+        return {"status": "failed", "attempts": claim.attempts}
+    if claim.job_terminal:  # cancelled or failed meanwhile: don't spend CPU on it
+        return {"status": "skipped", "job_status": claim.job_status}
+    spec, objective = cache.get(repo, job_id)
     faults.maybe_crash(spec.name, generation, index)
-    out = evaluate_one(objective, np.asarray(rec.params, dtype=float))
-    result = repo.record_evaluation(
+    out = evaluate_one(objective, np.asarray(claim.params, dtype=float))
+    changed = repo.store_result(
         job_id, generation, index, **outcome_fields(out, worker_name or socket.gethostname())
     )
     return {
-        "status": result.record.status,
-        "objective": result.record.objective,
-        "attempts": rec.attempts,
-        "changed": result.changed,
+        "status": DONE if changed else "duplicate",
+        "objective": float(out.objective),
+        "attempts": claim.attempts,
+        "changed": changed,
     }

@@ -27,7 +27,7 @@ import numpy as np
 from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
 from optim.executors import PoolExecutor
-from store import EvaluationRecord, Repository
+from store import EvaluationClaim, EvaluationRecord, Repository
 from store.records import PENDING
 from worker.config import WorkerConfig
 from worker.evaluation import (
@@ -96,19 +96,19 @@ class LocalPoolExecutor(GenerationExecutor):
         while True:
             check()
             rows = repo.evaluations(job_id, generation)
-            todo: list[EvaluationRecord] = []
+            todo: list[EvaluationClaim] = []
             for r in rows:
                 if r.status != PENDING:
                     continue
-                rec = repo.start_attempt(job_id, generation, r.index)
-                if rec.status != PENDING:
+                claim = repo.claim_evaluation(job_id, generation, r.index)
+                if claim.status != PENDING:
                     continue
-                if rec.attempts > self.config.max_attempts:
+                if claim.attempts > self.config.max_attempts:
                     repo.fail_evaluation(job_id, generation, r.index,
                                          attempts_exhausted_message(generation, r.index,
-                                                                    rec.attempts - 1))
+                                                                    claim.attempts - 1))
                     continue
-                todo.append(rec)
+                todo.append(claim)
             if not todo:
                 return repo.evaluations(job_id, generation)
             try:
@@ -116,9 +116,8 @@ class LocalPoolExecutor(GenerationExecutor):
             except EvaluationError as err:  # a pool process died: count it, try the rest again
                 log.warning("job %s generation %d: %s", job_id, generation, err)
                 continue
-            for r, out in zip(todo, outs, strict=True):
-                repo.record_evaluation(job_id, generation, r.index,
-                                       **outcome_fields(out, self.node))
+            for c, out in zip(todo, outs, strict=True):
+                repo.store_result(job_id, generation, c.index, **outcome_fields(out, self.node))
 
     def stats(self):
         return {"workers": self.pool.workers}
@@ -173,6 +172,9 @@ class CeleryExecutor(GenerationExecutor):
                     args=[job_id, generation, i],
                     queue=self.config.queue,
                     retry=False,
+                    # the store has the result: no result-backend subscription per task here,
+                    # no result written by the worker
+                    ignore_result=True,
                 )
                 pending.pop(0)
                 self.sent += 1

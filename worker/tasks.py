@@ -2,8 +2,12 @@
 the parameters come from, and the result goes to, the store (see worker.evaluation).
 
 Each worker pool process opens its own repository lazily (after the fork) and keeps one
-simulator per spec (optim.objective's cache), so consecutive candidates of a job reuse the ODE
-world.
+simulator per job (worker.evaluation.SpecCache), so consecutive candidates of a job reuse the
+ODE world.
+
+`ignore_result=True`: nothing reads a task's return value (the driver polls the store, never
+`.get()`), so no result is written to the result backend; the small dict returned is only
+logged by the worker.
 """
 
 from __future__ import annotations
@@ -39,7 +43,8 @@ def _fresh_process(**_: Any) -> None:  # never reuse the parent's connections af
     _repo = None
 
 
-@app.task(name=TASK_EVALUATE, bind=True, acks_late=True, reject_on_worker_lost=True)
+@app.task(name=TASK_EVALUATE, bind=True, acks_late=True, reject_on_worker_lost=True,
+          ignore_result=True)
 def evaluate_candidate(self, job_id: str, generation: int, index: int) -> dict[str, Any]:
     node = getattr(self.request, "hostname", None) or f"pid{os.getpid()}"
     return run_candidate(

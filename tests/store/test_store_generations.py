@@ -285,3 +285,180 @@ def test_concurrent_attempts_are_each_counted(repo: SqlRepository) -> None:
     for t in threads:
         t.join(60)
     assert repo.get_evaluation(job.id, 0, 0).attempts == 20
+
+
+# ---- the workers' per-candidate calls: claim_evaluation + store_result --------------------
+def test_claim_counts_an_attempt_and_reports_the_job(repo: SqlRepository) -> None:
+    job = new_job(repo)
+    repo.put_pending_evaluations(job.id, 0, [[0.5, 0.25], [0.6, 0.6]])
+    claim = repo.claim_evaluation(job.id, 0, 0)
+    assert (claim.job_id, claim.generation, claim.index) == (job.id, 0, 0)
+    assert (claim.status, claim.attempts, claim.params) == ("pending", 1, [0.5, 0.25])
+    assert claim.job_status == "running" and not claim.job_terminal
+    assert repo.claim_evaluation(job.id, 0, 0).attempts == 2  # e.g. its worker died
+    assert repo.get_evaluation(job.id, 0, 0).attempts == 2
+    assert repo.store_result(job.id, 0, 0, objective=1.5, fell=False, cpu_seconds=0.25)
+    # a re-delivered message for a finished candidate counts nothing and sees it done
+    done = repo.claim_evaluation(job.id, 0, 0)
+    assert (done.status, done.attempts) == ("done", 2)
+    assert repo.get_evaluation(job.id, 0, 0).attempts == 2
+
+    repo.set_job_status(job.id, "cancelled")
+    late = repo.claim_evaluation(job.id, 0, 1)
+    assert late.job_status == "cancelled" and late.job_terminal
+    with pytest.raises(NotFound):
+        repo.claim_evaluation(job.id, 0, 7)
+    with pytest.raises(NotFound):
+        repo.claim_evaluation(job.id, 1, 0)
+    with pytest.raises(NotFound):
+        repo.claim_evaluation("nope", 0, 0)
+
+
+def test_store_result_first_result_wins(repo: SqlRepository) -> None:
+    job = new_job(repo)
+    repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5], [0.6, 0.6], [0.7, 0.7]])
+    repo.claim_evaluation(job.id, 0, 0)
+    assert repo.store_result(
+        job.id, 0, 0, objective=1.25, fell=True, cpu_seconds=0.5, details={"worker": "w1"}
+    )
+    first = repo.get_evaluation(job.id, 0, 0)
+    assert (first.status, first.objective, first.fell, first.cpu_seconds) == ("done", 1.25,
+                                                                            True, 0.5)
+    assert (first.attempts, first.params, first.details) == (1, [0.5, 0.5], {"worker": "w1"})
+    assert first.error is None
+    assert not repo.store_result(job.id, 0, 0, objective=9.0, fell=False, cpu_seconds=3.0)
+    assert not repo.store_result(job.id, 0, 0, objective=None, fell=None, cpu_seconds=None,
+                                 error="late failure")
+    assert repo.get_evaluation(job.id, 0, 0) == first
+    # an error makes it failed; a result never claimed still counts one attempt
+    assert repo.store_result(job.id, 0, 1, objective=None, fell=None, cpu_seconds=None,
+                             error="gave up")
+    failed = repo.get_evaluation(job.id, 0, 1)
+    assert (failed.status, failed.objective, failed.error, failed.attempts) == (
+        "failed", None, "gave up", 1)
+    assert repo.evaluation_counts(job.id, 0) == GenerationCounts(pending=1, done=1, failed=1)
+    # numpy numbers are plain data; nothing is stored for refused input
+    assert repo.store_result(job.id, 0, 2, objective=np.float64(0.5), fell=np.bool_(False),
+                             cpu_seconds=np.float32(0.125), details={"x": np.arange(2)})
+    assert repo.get_evaluation(job.id, 0, 2).details == {"x": [0, 1]}
+    with pytest.raises(ValueError):
+        repo.store_result(job.id, 0, 2, objective=float("nan"), fell=False, cpu_seconds=0)
+    with pytest.raises(ValueError):
+        repo.store_result(job.id, 0, 2, objective=None, fell=False, cpu_seconds=0)
+    with pytest.raises(NotFound):
+        repo.store_result(job.id, 0, 3, objective=1.0, fell=False, cpu_seconds=0)
+    with pytest.raises(NotFound):
+        repo.store_result("nope", 0, 0, objective=1.0, fell=False, cpu_seconds=0)
+    assert repo.evaluations(job.id, 0)[2].objective == 0.5
+
+
+def test_claimed_attempts_are_bounded_by_the_caller(repo: SqlRepository) -> None:
+    """The worker path of a candidate that kills its worker every time."""
+    max_attempts = 3
+    job = new_job(repo)
+    repo.put_pending_evaluations(job.id, 0, [[0.1], [0.2]])
+    for n in range(1, max_attempts + 1):
+        claim = repo.claim_evaluation(job.id, 0, 1)
+        assert claim.attempts == n and claim.status == "pending"  # ... and the worker dies
+    claim = repo.claim_evaluation(job.id, 0, 1)
+    assert claim.attempts > max_attempts
+    out = repo.fail_evaluation(job.id, 0, 1, f"gave up after {max_attempts} attempts")
+    assert out.changed and out.counts == GenerationCounts(pending=1, failed=1)
+    again = repo.claim_evaluation(job.id, 0, 1)
+    assert (again.status, again.attempts) == ("failed", claim.attempts)
+    assert not repo.store_result(job.id, 0, 1, objective=1.0, fell=False, cpu_seconds=1.0)
+    assert repo.get_evaluation(job.id, 0, 1).status == "failed"
+    # the other candidate is unaffected
+    assert repo.claim_evaluation(job.id, 0, 0).attempts == 1
+    assert repo.store_result(job.id, 0, 0, objective=1.0, fell=False, cpu_seconds=1.0)
+
+
+def test_evaluation_writes_leave_the_connection_settings_alone(db) -> None:
+    """PostgreSQL: only the per-candidate transactions commit asynchronously (SET LOCAL), the
+    pooled connection goes back with the server's setting."""
+    url, _engine = db
+    engine = make_engine(url, pool_size=1, max_overflow=0)  # one connection: the one used
+    try:
+        repo = SqlRepository(engine)
+        job = new_job(repo)
+        repo.put_pending_evaluations(job.id, 0, [[0.1]])
+        repo.claim_evaluation(job.id, 0, 0)
+        repo.store_result(job.id, 0, 0, objective=1.0, fell=False, cpu_seconds=0.0)
+        with pytest.raises(NotFound):
+            repo.store_result(job.id, 0, 1, objective=1.0, fell=False, cpu_seconds=0.0)
+        assert repo.get_evaluation(job.id, 0, 0).status == "done"
+        if engine.dialect.name == "postgresql":
+            with engine.connect() as c:
+                assert c.exec_driver_sql("SHOW synchronous_commit").scalar() == "on"
+    finally:
+        engine.dispose()
+
+
+def _claim_and_store(repo: SqlRepository, job_id: str, seed: int) -> list[tuple[int, bool]]:
+    """The worker path for every candidate of generation 0, in a shuffled order."""
+    order = list(range(POP))
+    random.Random(seed).shuffle(order)
+    seen = []
+    for i in order:
+        claim = repo.claim_evaluation(job_id, 0, i)
+        changed = repo.store_result(job_id, 0, i, objective=float(i), fell=False,
+                                    cpu_seconds=float(seed), details={"writer": seed})
+        seen.append((i, changed, claim.status))
+    return seen
+
+
+def _claim_child(url: str, job_id: str, seed: int, queue) -> None:
+    engine = make_engine(url)
+    try:
+        queue.put((seed, _claim_and_store(SqlRepository(engine), job_id, seed)))
+    finally:
+        engine.dispose()
+
+
+def test_concurrent_worker_writes_from_processes(repo: SqlRepository, db) -> None:
+    url, _engine = db
+    job = new_job(repo)
+    repo.put_pending_evaluations(job.id, 0, [[i / POP] for i in range(POP)])
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue()
+    procs = [ctx.Process(target=_claim_child, args=(url, job.id, s, queue))
+             for s in range(WRITERS)]
+    for p in procs:
+        p.start()
+    runs = dict(queue.get(timeout=60) for _ in procs)
+    for p in procs:
+        p.join(30)
+        assert p.exitcode == 0
+    winners = {i: seed for seed, run in runs.items() for i, changed, _ in run if changed}
+    assert sorted(winners) == list(range(POP)), "each candidate stored exactly once"
+    assert sum(changed for run in runs.values() for _, changed, _ in run) == POP
+    evs = repo.evaluations(job.id, 0)
+    assert [e.status for e in evs] == ["done"] * POP
+    # the stored result is the one whose write returned True
+    assert [e.details for e in evs] == [{"writer": winners[i]} for i in range(POP)]
+    assert [e.cpu_seconds for e in evs] == [float(winners[i]) for i in range(POP)]
+    # attempts: one per claim that found the candidate pending
+    claimed = [sum(1 for run in runs.values() for i, _, st in run if i == k and st == "pending")
+               for k in range(POP)]
+    assert [e.attempts for e in evs] == claimed and all(1 <= a <= WRITERS for a in claimed)
+    assert repo.evaluation_counts(job.id, 0) == GenerationCounts(done=POP)
+
+
+def test_concurrent_claims_are_each_counted(repo: SqlRepository) -> None:
+    job = new_job(repo)
+    repo.put_pending_evaluations(job.id, 0, [[0.5]])
+    barrier = threading.Barrier(4)
+    seen: list[int] = []
+
+    def run() -> None:
+        barrier.wait()
+        for _ in range(5):
+            seen.append(repo.claim_evaluation(job.id, 0, 0).attempts)
+
+    threads = [threading.Thread(target=run) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert sorted(seen) == list(range(1, 21))  # every claim saw its own increment
+    assert repo.get_evaluation(job.id, 0, 0).attempts == 20
