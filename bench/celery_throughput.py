@@ -1,6 +1,7 @@
 """Evaluations per second: Celery workers versus a bare process pool, on the same short clips.
 
     .venv/bin/python bench/celery_throughput.py [--candidates 32] [--workers 1 2] [--clip 0.8]
+        [--repeat R] [--store N] [--json]
 
 For each worker count N, in the same run and on the same candidates:
   * bare pool: `optim.executors.PoolExecutor(N).map(SimObjective(spec), batch)`;
@@ -8,9 +9,15 @@ For each worker count N, in the same run and on the same candidates:
                private redis-server and a fresh PostgreSQL database, driven by the job driver's
                own `CeleryExecutor` (pending evaluations in the store, one task per candidate,
                results upserted, completion by polling the store's counts).
-Both sides are warmed up first (processes started, simulators built). Prints evaluations per
-second and the ratio Celery / bare pool (target: >= 0.90). No assertions: timings on a shared
-machine are noisy; run it on an otherwise idle machine for figures to quote.
+Both sides are warmed up first (processes started, simulators built), then measured `--repeat`
+times, alternating, so that both see the same machine load. Prints median evaluations per
+second, the ratio Celery / bare pool (target: >= 0.90) and Celery's overhead per candidate in
+worker-milliseconds (workers x (1/celery rate - 1/pool rate)). The driver waits with its
+production settings (CMRT_POLL_INTERVAL, default 0.2 s, shorter near a generation's end).
+`--store N` also times the worker's store path alone: `worker.evaluation.run_candidate` with a
+null objective, N times in this process against the same PostgreSQL database (median ms).
+No assertions: timings on a shared machine are noisy; run it on an otherwise idle machine for
+figures to quote.
 Needs redis-server on PATH and PostgreSQL (CMRT_BENCH_PG, default
 postgresql+psycopg://postgres@127.0.0.1:5432/test, as admin URL to create a scratch database).
 """
@@ -24,10 +31,10 @@ import os
 import shutil
 import signal
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import uuid
 from pathlib import Path
@@ -66,18 +73,24 @@ def _batch(spec, n: int, seed: int) -> list[np.ndarray]:
     return [np.clip(x0 + 0.1 * rng.standard_normal(len(x0)), 0, 1) for _ in range(n)]
 
 
-def bare_pool(spec, batch, warm, workers: int) -> float:
+@contextlib.contextmanager
+def bare_pool(spec, warm, workers: int):
+    """A warmed-up bare pool; yields `measure(batch) -> eval/s`."""
     from optim.executors import PoolExecutor
     from optim.objective import SimObjective
 
     fn = SimObjective(spec)
     with PoolExecutor(workers) as pool:
         pool.map(fn, warm)
-        t0 = time.perf_counter()
-        outs = pool.map(fn, batch)
-        dt = time.perf_counter() - t0
-    assert all(o.error is None for o in outs)
-    return len(batch) / dt
+
+        def measure(batch) -> float:
+            t0 = time.perf_counter()
+            outs = pool.map(fn, batch)
+            dt = time.perf_counter() - t0
+            assert all(o.error is None for o in outs)
+            return len(batch) / dt
+
+        yield measure
 
 
 class _Scratch:
@@ -114,7 +127,10 @@ class _Scratch:
             shutil.rmtree(self.dir, ignore_errors=True)
 
 
-def celery(spec, batch, warm, workers: int, scratch: _Scratch) -> tuple[float, dict]:
+@contextlib.contextmanager
+def celery(spec, warm, workers: int, scratch: _Scratch):
+    """A warmed-up Celery worker (the compose command) and the driver's executor; yields
+    `measure(batch) -> (eval/s, repeated attempts)`, one new generation per call."""
     from cmrt.settings import Settings
     from store import open_repository
     from worker.celery_app import make_celery
@@ -126,7 +142,7 @@ def celery(spec, batch, warm, workers: int, scratch: _Scratch) -> tuple[float, d
     env.pop("CMRT_FAULT_CRASH_ON", None)
     repo = open_repository(scratch.db_url)
     settings = Settings(database_url=scratch.db_url, broker_url=scratch.broker)
-    cfg = WorkerConfig(settings, poll_interval=0.05)
+    cfg = WorkerConfig(settings)
     app = make_celery(scratch.broker, scratch.broker, cfg)
     ex = CeleryExecutor(cfg, app)
     log = open(scratch.dir / f"worker{workers}.log", "wb")  # noqa: SIM115
@@ -139,22 +155,26 @@ def celery(spec, batch, warm, workers: int, scratch: _Scratch) -> tuple[float, d
         s = spec
         job = repo.create_job(s.model_dump(mode="json"), name=s.name, family=s.family_name,
                               task=s.task, seed=0)
-        ev = threading.Event()
 
         def check() -> None:
             if proc.poll() is not None:
                 raise RuntimeError(f"worker exited: see {log.name}")
-            if ev.is_set():
-                raise RuntimeError("interrupted")
 
         repo.put_pending_evaluations(job.id, 0, [list(map(float, x)) for x in warm])
         ex.evaluate(repo, job.id, job.spec, 0, len(warm), check)
-        repo.put_pending_evaluations(job.id, 1, [list(map(float, x)) for x in batch])
-        t0 = time.perf_counter()
-        rows = ex.evaluate(repo, job.id, job.spec, 1, len(batch), check)
-        dt = time.perf_counter() - t0
-        assert all(r.status == "done" for r in rows)
-        return len(batch) / dt, {"repeated": sum(r.attempts - 1 for r in rows)}
+        generation = 0
+
+        def measure(batch) -> tuple[float, int]:
+            nonlocal generation
+            generation += 1
+            repo.put_pending_evaluations(job.id, generation, [list(map(float, x)) for x in batch])
+            t0 = time.perf_counter()
+            rows = ex.evaluate(repo, job.id, job.spec, generation, len(batch), check)
+            dt = time.perf_counter() - t0
+            assert all(r.status == "done" for r in rows)
+            return len(batch) / dt, sum(r.attempts - 1 for r in rows)
+
+        yield measure
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGTERM)
@@ -165,11 +185,44 @@ def celery(spec, batch, warm, workers: int, scratch: _Scratch) -> tuple[float, d
         repo.engine.dispose()
 
 
+def store_path(spec, n: int, scratch: _Scratch) -> dict:
+    """Median and mean ms of `run_candidate` with a null objective (claim, result; no Celery)."""
+    from store import open_repository
+    from worker.evaluation import SpecCache, run_candidate
+
+    repo = open_repository(scratch.db_url)
+    try:
+        job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
+                              family=spec.family_name, task=spec.task, seed=0)
+        repo.set_job_status(job.id, "running")
+        cache = SpecCache(lambda _spec: (lambda _x: 1.0))
+        pop, times, cpu = 16, [], 0.0
+        for g in range(100, 100 + (n + pop - 1) // pop + 1):
+            repo.put_pending_evaluations(job.id, g, [[0.5] * spec.cmrt_dimension] * pop)
+            for i in range(pop):
+                t0, c0 = time.perf_counter(), time.process_time()
+                out = run_candidate(repo, job.id, g, i, max_attempts=3, cache=cache,
+                                    worker_name="bench")
+                if g > 100:  # the first generation warms up (connection, statements)
+                    times.append(time.perf_counter() - t0)
+                    cpu += time.process_time() - c0
+                assert out["status"] == "done", out
+        return {"store_ms_median": 1e3 * statistics.median(times),
+                "store_ms_mean": 1e3 * statistics.mean(times),
+                "store_cpu_ms_mean": 1e3 * cpu / len(times), "store_n": len(times)}
+    finally:
+        repo.engine.dispose()
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--candidates", type=int, default=32)
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     p.add_argument("--clip", type=float, default=0.8, help="clip length in seconds")
+    p.add_argument("--repeat", type=int, default=1,
+                   help="measurements per side, alternating pool and Celery (medians shown)")
+    p.add_argument("--store", type=int, default=0, metavar="N",
+                   help="also time run_candidate with a null objective N times")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     from sim.spec import parse_spec
@@ -181,20 +234,40 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for n in args.workers:
             warm = _batch(spec, 2 * n, 100 + n)
-            pool_rate = bare_pool(spec, batch, warm, n)
-            cel_rate, extra = celery(spec, batch, warm, n, scratch)
+            pool_rates, cel_rates, repeated = [], [], 0
+            with bare_pool(spec, warm, n) as pool, celery(spec, warm, n, scratch) as cel:
+                for _ in range(args.repeat):  # alternate, so both see the same machine load
+                    pool_rates.append(pool(batch))
+                    rate, rep = cel(batch)
+                    cel_rates.append(rate)
+                    repeated += rep
+            ratios = [c / p for c, p in zip(cel_rates, pool_rates, strict=True)]
+            pool_rate = statistics.median(pool_rates)
+            cel_rate = statistics.median(cel_rates)
             rows.append({"workers": n, "pool_eval_per_s": pool_rate,
-                         "celery_eval_per_s": cel_rate, "ratio": cel_rate / pool_rate, **extra})
+                         "celery_eval_per_s": cel_rate, "ratio": statistics.median(ratios),
+                         "ratios": ratios,
+                         "overhead_ms": 1e3 * n * (1 / cel_rate - 1 / pool_rate),
+                         "repeated": repeated})
+        store = store_path(spec, args.store, scratch) if args.store > 0 else None
     finally:
         scratch.close()
     if args.json:
-        print(json.dumps(rows, indent=1))
+        print(json.dumps({"rows": rows, "store": store} if store else rows, indent=1))
         return 0
-    print(f"clip {args.clip:g} s, {args.candidates} candidates per measurement")
-    print(f"{'workers':>7} {'pool eval/s':>12} {'celery eval/s':>14} {'ratio':>6}")
+    print(f"clip {args.clip:g} s, {args.candidates} candidates per measurement, "
+          f"median of {args.repeat} alternating measurements per side")
+    print(f"{'workers':>7} {'pool eval/s':>12} {'celery eval/s':>14} {'ratio':>6} "
+          f"{'overhead ms/cand':>17}")
     for r in rows:
         print(f"{r['workers']:>7} {r['pool_eval_per_s']:>12.2f} {r['celery_eval_per_s']:>14.2f} "
-              f"{r['ratio']:>6.1%}")
+              f"{r['ratio']:>6.1%} {r['overhead_ms']:>17.1f}"
+              + (f"   ratios {' '.join(f'{x:.0%}' for x in r['ratios'])}" if args.repeat > 1
+                 else ""))
+    if store:
+        print(f"store path (run_candidate, null objective, PostgreSQL): median "
+              f"{store['store_ms_median']:.2f} ms, mean {store['store_ms_mean']:.2f} ms, "
+              f"CPU {store['store_cpu_ms_mean']:.2f} ms over {store['store_n']} candidates")
     return 0
 
 

@@ -20,7 +20,8 @@ class _WorkerEnv(BaseSettings):
 
     #: Redis re-delivers an unacknowledged message after this many seconds.
     visibility_timeout: float = Field(3600.0, gt=0)
-    #: Job driver: how often the store is polled for finished evaluations.
+    #: Job driver: longest wait between two polls of the store for finished evaluations
+    #: (shorter near the expected end of a generation: worker.executors.PollSchedule).
     poll_interval: float = Field(0.2, gt=0)
     #: Job driver: when no evaluation of the generation finished for this long, the ones not done
     #: are dispatched again (idempotent), so a message lost with a broker restart never hangs a

@@ -1,0 +1,76 @@
+"""The Celery side of the distributed path, without a broker: task and app settings required by
+design.md ("Jobs"), what the driver sends, and when it polls the store."""
+
+from __future__ import annotations
+
+import pytest
+
+from cmrt.settings import Settings
+from worker.celery_app import TASK_EVALUATE, make_celery
+from worker.config import WorkerConfig
+from worker.executors import MIN_POLL_INTERVAL, CeleryExecutor, PollSchedule
+
+
+@pytest.fixture
+def config(tmp_path):
+    settings = Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/t.db",
+                        broker_url="redis://127.0.0.1:1/0", eval_time_limit=60)
+    return WorkerConfig(settings, visibility_timeout=120)
+
+
+def test_evaluation_task_settings() -> None:
+    from worker.tasks import evaluate_candidate
+
+    assert evaluate_candidate.name == TASK_EVALUATE
+    assert evaluate_candidate.acks_late and evaluate_candidate.reject_on_worker_lost
+    assert evaluate_candidate.ignore_result  # the driver reads the store, never a result
+
+
+def test_app_settings_follow_the_design(config) -> None:
+    conf = make_celery("redis://127.0.0.1:1/0", "redis://127.0.0.1:1/0", config).conf
+    assert conf.task_acks_late and conf.task_reject_on_worker_lost
+    assert conf.worker_prefetch_multiplier == 1
+    assert conf.task_soft_time_limit < conf.task_time_limit == 60
+    assert conf.task_time_limit < conf.broker_transport_options["visibility_timeout"] == 120
+
+
+class _RecordingApp:
+    """Stands in for the Celery app: records what the executor sends."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, list, dict]] = []
+
+    def send_task(self, name, args=None, **options):
+        self.sent.append((name, args, options))
+
+
+def test_driver_sends_ids_only_and_asks_for_no_result(config) -> None:
+    app = _RecordingApp()
+    ex = CeleryExecutor(config, app)
+    ex._send("job-1", 3, [0, 2], lambda: None)
+    assert [(n, a) for n, a, _ in app.sent] == [(TASK_EVALUATE, ["job-1", 3, 0]),
+                                              (TASK_EVALUATE, ["job-1", 3, 2])]
+    for _, _, options in app.sent:
+        assert options["ignore_result"] is True and options["queue"] == config.queue
+    assert ex.sent == 2
+
+
+def test_poll_schedule_backs_off_until_the_first_result() -> None:
+    s = PollSchedule(start=0.0, longest=0.2)
+    waits = [s.delay(now=0.0, resolved=0, remaining=8) for _ in range(6)]
+    assert waits == [MIN_POLL_INTERVAL, 0.02, 0.04, 0.08, 0.16, 0.2]
+
+
+def test_poll_schedule_closes_in_on_the_expected_end() -> None:
+    s = PollSchedule(start=0.0, longest=0.2)
+    # 40 ms per result: 24 left -> ~1 s to go -> the longest wait
+    assert s.delay(now=0.4, resolved=10, remaining=24) == 0.2
+    # 4 left -> 160 ms to go -> a quarter of it
+    assert s.delay(now=1.2, resolved=30, remaining=4) == pytest.approx(0.04)
+    # the last one, overdue or not: never below the shortest wait
+    assert s.delay(now=2.0, resolved=33, remaining=1) == pytest.approx(2.0 / 33 / 4)
+    assert s.delay(now=0.1, resolved=33, remaining=1) == MIN_POLL_INTERVAL
+    # candidates of seconds: the longest wait throughout
+    assert PollSchedule(0.0, 0.2).delay(now=5.0, resolved=1, remaining=1) == 0.2
+    # a longest wait below the shortest one wins
+    assert PollSchedule(0.0, 0.005).delay(now=0.0, resolved=0, remaining=3) == 0.005

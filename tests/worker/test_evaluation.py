@@ -1,0 +1,116 @@
+"""worker.evaluation.run_candidate (the body of the Celery task) against the real store, with a
+synthetic objective: claim, skip, fail after max_attempts, evaluate, store (first result wins)."""
+
+from __future__ import annotations
+
+import pytest
+
+from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
+from optim.synthetic import Sphere
+from store.repository import SqlRepository
+from worker.evaluation import SpecCache, run_candidate
+
+SPEC = {
+    "name": "w_bend", "family": "bend", "task": "pose_change",
+    "clip": {"preparation": 0.3, "duration": 0.3, "decay": 0.2},
+    "pose_change": {"target": {"waist": -30}},
+}  # fmt: skip
+
+
+class Counting:
+    """Sphere objective counting its calls (raises for x[0] > 0.9)."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[float, ...]] = []
+
+    def __call__(self, x) -> EvalOutcome:
+        self.calls.append(tuple(x))
+        if x[0] > 0.9:
+            raise RuntimeError("simulator blew up")
+        return Sphere(centre=0.3)(x)
+
+
+class CountingRepo(SqlRepository):
+    """The real repository, counting get_job calls."""
+
+    def __init__(self, engine) -> None:
+        super().__init__(engine)
+        self.get_job_calls = 0
+
+    def get_job(self, job_id):
+        self.get_job_calls += 1
+        return super().get_job(job_id)
+
+
+@pytest.fixture
+def setup(repo):
+    repo = CountingRepo(repo.engine)
+    job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
+    repo.set_job_status(job.id, "running")
+    objective = Counting()
+    cache = SpecCache(lambda spec: objective)
+    return repo, job.id, objective, cache
+
+
+def run(repo, job_id, g, i, cache, max_attempts=3):
+    return run_candidate(repo, job_id, g, i, max_attempts=max_attempts, cache=cache,
+                         worker_name="w1/42")
+
+
+def test_candidate_is_evaluated_once_and_its_result_stored(setup) -> None:
+    repo, job_id, objective, cache = setup
+    repo.put_pending_evaluations(job_id, 0, [[0.5, 0.5], [0.3, 0.3], [0.4, 0.2]])
+    out = run(repo, job_id, 0, 0, cache)
+    assert out == {"status": "done", "objective": pytest.approx(0.08), "attempts": 1,
+                   "changed": True}
+    ev = repo.get_evaluation(job_id, 0, 0)
+    assert (ev.status, ev.attempts, ev.fell) == ("done", 1, False)
+    assert ev.objective == pytest.approx(0.08) and ev.details == {"worker": "w1/42"}
+    # a re-delivered message: skipped, nothing counted, the objective not called again
+    assert run(repo, job_id, 0, 0, cache) == {"status": "done", "skipped": True}
+    assert repo.get_evaluation(job_id, 0, 0).attempts == 1 and len(objective.calls) == 1
+    for i in (1, 2):
+        assert run(repo, job_id, 0, i, cache)["status"] == "done"
+    assert repo.evaluation_counts(job_id, 0).done == 3
+    # the spec is read from the store once per process and job, not per candidate
+    assert repo.get_job_calls == 1
+
+
+def test_a_raising_objective_is_stored_as_done_with_the_worst_objective(setup) -> None:
+    repo, job_id, _objective, cache = setup
+    repo.put_pending_evaluations(job_id, 0, [[0.95, 0.5]])
+    assert run(repo, job_id, 0, 0, cache)["status"] == "done"
+    ev = repo.get_evaluation(job_id, 0, 0)
+    assert ev.status == "done" and ev.objective == FAILED_OBJECTIVE
+    assert "simulator blew up" in ev.details["error"]
+
+
+def test_candidate_of_a_finished_job_is_not_evaluated(setup) -> None:
+    repo, job_id, objective, cache = setup
+    repo.put_pending_evaluations(job_id, 0, [[0.5, 0.5]])
+    repo.set_job_status(job_id, "cancelled")
+    assert run(repo, job_id, 0, 0, cache) == {"status": "skipped", "job_status": "cancelled"}
+    assert objective.calls == [] and repo.get_evaluation(job_id, 0, 0).status == "pending"
+
+
+def test_candidate_killing_its_worker_fails_after_max_attempts(setup) -> None:
+    repo, job_id, objective, cache = setup
+    repo.put_pending_evaluations(job_id, 0, [[0.5, 0.5], [0.6, 0.6]])
+    for _ in range(2):  # two starts whose worker process died before storing anything
+        repo.claim_evaluation(job_id, 0, 1)
+    out = run(repo, job_id, 0, 1, cache, max_attempts=2)
+    assert out == {"status": "failed", "attempts": 3}
+    ev = repo.get_evaluation(job_id, 0, 1)
+    assert ev.status == "failed" and "started 2 times" in ev.error and objective.calls == []
+    assert run(repo, job_id, 0, 1, cache, max_attempts=2)["skipped"]
+    # its neighbour is evaluated normally
+    assert run(repo, job_id, 0, 0, cache, max_attempts=2)["status"] == "done"
+    counts = repo.evaluation_counts(job_id, 0)
+    assert (counts.done, counts.failed, counts.pending) == (1, 1, 0)
+
+
+def test_unknown_candidate_is_reported_missing(setup) -> None:
+    repo, job_id, objective, cache = setup
+    assert run(repo, job_id, 5, 0, cache) == {"status": "missing"}
+    assert run(repo, "nope", 0, 0, cache) == {"status": "missing"}
+    assert objective.calls == []
