@@ -37,7 +37,7 @@ from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import Connection, Engine, bindparam, case, func, or_, select, update
+from sqlalchemy import Connection, Engine, bindparam, case, func, or_, select, text, update
 from sqlalchemy.orm import Session, undefer
 
 from store.db import session_scope
@@ -522,6 +522,14 @@ _STORE_RESULT = (
     )
 )
 _EVALUATION_ID = select(_EV.c.id).where(*_EV_KEY)
+#: PostgreSQL: the writes above run in autocommit mode, each statement its own transaction (one
+#: round trip), and commit asynchronously by this condition: `set_config(..., true)` sets
+#: synchronous_commit for the current transaction only, and the setting in effect when a
+#: transaction commits decides how it commits. It is evaluated on the row the statement
+#: changes (a statement that changes nothing writes no commit record to flush anyway).
+_ASYNC_COMMIT = text("set_config('synchronous_commit', 'off', true) = 'off'")
+_CLAIM_PG = _CLAIM.where(_ASYNC_COMMIT)
+_STORE_RESULT_PG = _STORE_RESULT.where(_ASYNC_COMMIT)
 
 
 class SqlRepository(Repository):
@@ -530,24 +538,27 @@ class SqlRepository(Repository):
 
     `clock` returns the current aware UTC time (tests inject one to expire leases).
 
-    The workers' per-candidate calls (`claim_evaluation`, `store_result`) are single Core
-    statements in one short transaction each (no ORM session, no job lock, no counts): they are
-    the store's share of every evaluation's cost. On PostgreSQL they commit with
-    `synchronous_commit = off`: the commit returns before its WAL record is flushed to disk, so
-    it is visible to every session at once and survives any client dying, but a crash of the
-    server itself (not a clean restart) may forget the last ~0.6 s of such commits
-    (3 x wal_writer_delay). That loses no told result: WAL is replayed in order, so a crash
-    forgets a suffix of the commit sequence, and every transaction that could depend on an
-    evaluation result (the driver's `record_generation`, made after it read the results) is
-    committed synchronously later, flushing all earlier WAL with it. A forgotten result is
-    pending again and evaluated again (the driver re-sends unresolved candidates); a forgotten
-    attempt only lets a candidate start once more. Everything else commits synchronously.
+    The workers' per-candidate calls (`claim_evaluation`, `store_result`) are single prebuilt
+    Core statements, each its own transaction (no ORM session, no job lock, no counts; on
+    PostgreSQL one round trip in autocommit mode): they are the store's share of every
+    evaluation's cost. On PostgreSQL they commit with `synchronous_commit = off`: the commit
+    returns before its WAL record is flushed to disk, so it is visible to every session at once
+    and survives any client dying, but a crash of the server itself (not a clean restart) may
+    forget the last ~0.6 s of such commits (3 x wal_writer_delay). That loses no told result:
+    WAL is replayed in order, so a crash forgets a suffix of the commit sequence, and every
+    transaction that could depend on an evaluation result (the driver's `record_generation`,
+    made after it read the results) is committed synchronously later, flushing all earlier WAL
+    with it. A forgotten result is pending again and evaluated again (the driver re-sends
+    unresolved candidates); a forgotten attempt only lets a candidate start once more.
+    Everything else commits synchronously.
     """
 
     def __init__(self, engine: Engine, *, clock: Clock = utcnow) -> None:
         self.engine = engine
         self._clock = clock
         self._postgres = engine.dialect.name == "postgresql"
+        self._claim = _CLAIM_PG if self._postgres else _CLAIM
+        self._store_result = _STORE_RESULT_PG if self._postgres else _STORE_RESULT
 
     # ---- helpers ------------------------------------------------------------------------
     def _write(self) -> Any:
@@ -555,12 +566,15 @@ class SqlRepository(Repository):
 
     @contextmanager
     def _evaluation_write(self) -> Iterator[Connection]:
-        """A Core connection in one write transaction for per-candidate writes; committed
-        asynchronously on PostgreSQL (see the class docstring)."""
-        with self.engine.begin() as conn:
-            if self._postgres:
-                conn.exec_driver_sql("SET LOCAL synchronous_commit = off")
-            yield conn
+        """A Core connection for the per-candidate statements: PostgreSQL in autocommit mode
+        (each statement is its own transaction; the writes commit asynchronously by
+        `_ASYNC_COMMIT`), SQLite in one write transaction (BEGIN IMMEDIATE)."""
+        if self._postgres:
+            with self.engine.connect() as conn:
+                yield conn.execution_options(isolation_level="AUTOCOMMIT")
+        else:
+            with self.engine.begin() as conn:
+                yield conn
 
     def _read(self) -> Any:
         return session_scope(self.engine, read_only=True)
@@ -826,7 +840,7 @@ class SqlRepository(Repository):
     def claim_evaluation(self, job_id, generation, index):
         key = {"p_job_id": job_id, "p_generation": int(generation), "p_index": int(index)}
         with self._evaluation_write() as conn:
-            row = conn.execute(_CLAIM, {**key, "p_now": self._clock()}).first()
+            row = conn.execute(self._claim, {**key, "p_now": self._clock()}).first()
             if row is None:  # done, failed or missing: count nothing
                 row = conn.execute(_CLAIM_LOOKUP, key).first()
                 if row is None:
@@ -851,7 +865,7 @@ class SqlRepository(Repository):
             "p_details": _json(details, "details"), "p_now": self._clock(),
         }  # fmt: skip
         with self._evaluation_write() as conn:
-            if conn.execute(_STORE_RESULT, {**key, **values}).rowcount == 1:
+            if conn.execute(self._store_result, {**key, **values}).rowcount == 1:
                 return True
             if conn.execute(_EVALUATION_ID, key).first() is None:
                 raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")

@@ -394,6 +394,34 @@ def test_evaluation_writes_leave_the_connection_settings_alone(db) -> None:
         engine.dispose()
 
 
+def test_evaluation_writes_commit_asynchronously_on_postgresql(repo: SqlRepository, db) -> None:
+    """PostgreSQL: the per-candidate writes do not wait for a WAL flush each (see
+    SqlRepository), the other writes do. Counted with the server's WAL sync counter; the bound
+    leaves room for other sessions on the same server."""
+    if db[1].dialect.name != "postgresql":
+        pytest.skip("PostgreSQL only")
+    from sqlalchemy import text
+
+    def wal_syncs() -> int:
+        with db[1].connect() as c:
+            return int(c.execute(text("SELECT wal_sync FROM pg_stat_wal")).scalar())
+
+    job = new_job(repo)
+    n = 60
+    repo.put_pending_evaluations(job.id, 0, [[0.5]] * (2 * n))
+    before = wal_syncs()
+    for i in range(n):
+        repo.claim_evaluation(job.id, 0, i)
+        repo.store_result(job.id, 0, i, objective=1.0, fell=False, cpu_seconds=0.0)
+    asynchronous = wal_syncs() - before
+    before = wal_syncs()
+    for i in range(n, 2 * n):
+        repo.start_attempt(job.id, 0, i)
+        repo.record_evaluation(job.id, 0, i, objective=1.0, fell=False, cpu_seconds=0.0)
+    synchronous = wal_syncs() - before
+    assert asynchronous < n // 2 <= synchronous, (asynchronous, synchronous)
+
+
 def _claim_and_store(repo: SqlRepository, job_id: str, seed: int) -> list[tuple[int, bool]]:
     """The worker path for every candidate of generation 0, in a shuffled order."""
     order = list(range(POP))
