@@ -15,17 +15,25 @@ Idempotent and attempt-counted, with two store calls per candidate:
 An exception inside the objective is a property of the candidate (deterministic): it is stored as
 `done` with the worst objective (optim's FAILED_OBJECTIVE) and the error in `details`, so CMA-ES
 ranks it last, exactly as the CLI's executors do.
+
+A lost database connection (PostgreSQL restarted, the session killed, the server briefly
+unreachable) does not fail the candidate: each store call is tried again on a fresh connection
+for up to `RECONNECT_SECONDS` (`with_reconnect`), so a finished evaluation is stored once the
+database answers again. That is what lets the Celery workers skip SQLAlchemy's ping before every
+use of a pooled connection (worker.tasks).
 """
 
 from __future__ import annotations
 
 import logging
 import socket
+import time
 from collections import OrderedDict
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
+from sqlalchemy.exc import DBAPIError, OperationalError
 
 from optim.executors import EvalOutcome, evaluate_one
 from sim.spec import TaskSpec, parse_spec
@@ -36,6 +44,7 @@ from worker import faults
 log = logging.getLogger(__name__)
 
 ObjectiveFactory = Callable[[TaskSpec], Callable[[np.ndarray], Any]]
+T = TypeVar("T")
 
 
 def default_objective_factory(spec: TaskSpec) -> Callable[[np.ndarray], Any]:
@@ -93,6 +102,37 @@ def outcome_fields(out: EvalOutcome, worker: str | None = None) -> dict[str, Any
     }
 
 
+#: How long a store call of `run_candidate` is retried while the database connection is lost.
+RECONNECT_SECONDS = 30.0
+
+
+def with_reconnect(call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+    """`call(*args, **kwargs)`, tried again (backing off from 0.05 to 2 s, for up to
+    `RECONNECT_SECONDS`) when it fails on a lost or refused database connection or another
+    transient database error (SQLAlchemy's OperationalError; SQLAlchemy has already discarded the
+    dead connections, so the next try opens a fresh one).
+
+    Safe for the calls of `run_candidate`: a read, a first-result-wins write, or a claim, which
+    repeated after a commit whose reply was lost counts one attempt too many (erring toward
+    failing a candidate early, never toward looping).
+    """
+    deadline = time.monotonic() + RECONNECT_SECONDS
+    delay = 0.05
+    while True:
+        try:
+            return call(*args, **kwargs)
+        except DBAPIError as err:
+            if not (err.connection_invalidated or isinstance(err, OperationalError)):
+                raise
+            if time.monotonic() + delay > deadline:
+                raise
+            log.warning("database call %s failed (%s: %s); trying again in %.2f s",
+                        getattr(call, "__name__", call), type(err.orig).__name__,
+                        str(err.orig).strip().splitlines()[0] if err.orig else "", delay)
+            time.sleep(delay)
+            delay = min(2.0 * delay, 2.0)
+
+
 def run_candidate(
     repo: Repository,
     job_id: str,
@@ -105,23 +145,24 @@ def run_candidate(
 ) -> dict[str, Any]:
     """Evaluate one stored candidate and upsert its result; returns a small JSON dict."""
     try:
-        claim = repo.claim_evaluation(job_id, generation, index)
+        claim = with_reconnect(repo.claim_evaluation, job_id, generation, index)
     except NotFound:
         return {"status": "missing"}
     if claim.status != PENDING:
         return {"status": claim.status, "skipped": True}
     if claim.attempts > max_attempts:
         msg = attempts_exhausted_message(generation, index, claim.attempts - 1)
-        repo.fail_evaluation(job_id, generation, index, msg)
+        with_reconnect(repo.fail_evaluation, job_id, generation, index, msg)
         log.error("job %s: %s", job_id, msg)
         return {"status": "failed", "attempts": claim.attempts}
     if claim.job_terminal:  # cancelled or failed meanwhile: don't spend CPU on it
         return {"status": "skipped", "job_status": claim.job_status}
-    spec, objective = cache.get(repo, job_id)
+    spec, objective = with_reconnect(cache.get, repo, job_id)
     faults.maybe_crash(spec.name, generation, index)
     out = evaluate_one(objective, np.asarray(claim.params, dtype=float))
-    changed = repo.store_result(
-        job_id, generation, index, **outcome_fields(out, worker_name or socket.gethostname())
+    changed = with_reconnect(
+        repo.store_result,
+        job_id, generation, index, **outcome_fields(out, worker_name or socket.gethostname()),
     )
     return {
         "status": DONE if changed else "duplicate",

@@ -31,9 +31,13 @@ def _repository():
     global _repo
     with _lock:
         if _repo is None:
-            from store import open_repository
+            from store import SqlRepository, make_engine
 
-            _repo = open_repository(get_worker_config().database_url, migrate=False)
+            # No ping before each use of a pooled connection (it would be 2 of the 4 database
+            # round trips per candidate): run_candidate retries its store calls on a fresh
+            # connection when the database connection was lost (worker.evaluation).
+            _repo = SqlRepository(make_engine(get_worker_config().database_url,
+                                              pool_pre_ping=False))
         return _repo
 
 

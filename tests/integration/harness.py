@@ -170,6 +170,19 @@ class Topology:
 
         init_db(self.database_url).dispose()
 
+    def drop_database_connections(self) -> int:
+        """Terminate every session of the test database, as a PostgreSQL restart does to its
+        clients (the server itself, shared with others, stays up). Returns how many."""
+        import sqlalchemy as sa
+
+        admin = sa.create_engine(PG_ADMIN_URL, isolation_level="AUTOCOMMIT")
+        with admin.connect() as c:
+            n = c.execute(sa.text(
+                "SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity "
+                "WHERE datname = :db AND pid <> pg_backend_pid()"), {"db": self.database}).scalar()
+        admin.dispose()
+        return int(n or 0)
+
     def drop_database(self) -> None:
         if not self.database:
             return

@@ -140,6 +140,25 @@ def test_redis_restarted_mid_job(api, topology):
     assert api.get("/health").json()["broker"] == "ok"
 
 
+def test_database_connections_dropped_mid_job(api, topology):
+    """Every database session of the API, its driver and the workers is terminated
+    mid-generation (what a PostgreSQL restart does to them): the job carries on, nothing lost."""
+    def task_failures() -> int:
+        return sum(p.log.read_text(errors="replace").count("raised unexpected")
+                   for p in topology.procs["worker"])
+
+    job_id = submit(api, bend("it_db_drop", 0.35, popsize=6, max_evaluations=18), seed=6)
+    _wait_mid_generation(api, job_id, 1)
+    failures = task_failures()
+    dropped = topology.drop_database_connections()
+    print(f"\n[database connections dropped] {dropped} sessions terminated")
+    assert dropped >= 1
+    _, book = _check_complete(api, job_id, "database connections dropped")
+    assert book["repeated"] <= 6
+    assert task_failures() == failures, "an evaluation task failed on the lost connection"
+    assert api.get("/health").json()["database"] == "ok"
+
+
 def test_bad_input_gets_4xx_and_stores_nothing(api):
     before = api.get("/jobs").json()["total"]
     good = bend("it_bad")

@@ -114,3 +114,57 @@ def test_unknown_candidate_is_reported_missing(setup) -> None:
     assert run(repo, job_id, 5, 0, cache) == {"status": "missing"}
     assert run(repo, "nope", 0, 0, cache) == {"status": "missing"}
     assert objective.calls == []
+
+
+def test_store_calls_survive_a_lost_database_connection(repo) -> None:
+    """The worker's engine does not ping before each use (worker.tasks): a connection the
+    server has dropped fails its next statement, and the call is tried again on a new one."""
+    from store.db import make_engine
+
+    url = repo.engine.url.render_as_string(hide_password=False)
+    engine = make_engine(url, pool_pre_ping=False)
+    try:
+        worker_repo = SqlRepository(engine)
+        job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
+        repo.set_job_status(job.id, "running")
+        repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5], [0.3, 0.3]])
+        cache = SpecCache(lambda spec: Sphere(centre=0.3))
+        assert run(worker_repo, job.id, 0, 0, cache)["status"] == "done"
+        if engine.dialect.name == "postgresql":  # drop the pooled connection's session
+            from sqlalchemy import text
+
+            with engine.connect() as c:
+                pid = c.execute(text("SELECT pg_backend_pid()")).scalar()
+            with repo.engine.connect() as c:
+                assert c.execute(text("SELECT pg_terminate_backend(:p)"), {"p": pid}).scalar()
+        assert run(worker_repo, job.id, 0, 1, cache)["status"] == "done"
+        ev = repo.get_evaluation(job.id, 0, 1)
+        assert (ev.status, ev.attempts) == ("done", 1)
+    finally:
+        engine.dispose()
+
+
+def test_with_reconnect_retries_only_transient_database_errors(monkeypatch) -> None:
+    from sqlalchemy.exc import IntegrityError, OperationalError
+
+    from worker import evaluation
+
+    monkeypatch.setattr(evaluation.time, "sleep", lambda s: None)
+    calls = []
+
+    def flaky(x, fail=2, exc=OperationalError):
+        calls.append(x)
+        if len(calls) <= fail:
+            raise exc("SELECT 1", {}, RuntimeError("server closed the connection"))
+        return x * 2
+
+    assert evaluation.with_reconnect(flaky, 21) == 42 and len(calls) == 3
+    calls.clear()
+    with pytest.raises(IntegrityError):  # not transient: raised at once
+        evaluation.with_reconnect(flaky, 1, exc=IntegrityError)
+    assert len(calls) == 1
+    calls.clear()
+    monkeypatch.setattr(evaluation, "RECONNECT_SECONDS", 0.0)
+    with pytest.raises(OperationalError):  # down for longer than RECONNECT_SECONDS
+        evaluation.with_reconnect(flaky, 1)
+    assert len(calls) == 1
