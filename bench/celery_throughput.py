@@ -15,7 +15,8 @@ second, the ratio Celery / bare pool (target: >= 0.90) and Celery's overhead per
 worker-milliseconds (workers x (1/celery rate - 1/pool rate)). The driver waits with its
 production settings (CMRT_POLL_INTERVAL, default 0.2 s, shorter near a generation's end).
 `--store N` also times the worker's store path alone: `worker.evaluation.run_candidate` with a
-null objective, N times in this process against the same PostgreSQL database (median ms).
+null objective on a worker's repository, N times in this process against the same PostgreSQL
+database (median and mean wall ms, mean CPU ms).
 No assertions: timings on a shared machine are noisy; run it on an otherwise idle machine for
 figures to quote.
 Needs redis-server on PATH and PostgreSQL (CMRT_BENCH_PG, default
@@ -187,10 +188,9 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
 
 def store_path(spec, n: int, scratch: _Scratch) -> dict:
     """Median and mean ms of `run_candidate` with a null objective (claim, result; no Celery)."""
-    from store import open_repository
-    from worker.evaluation import SpecCache, run_candidate
+    from worker.evaluation import SpecCache, open_worker_repository, run_candidate
 
-    repo = open_repository(scratch.db_url)
+    repo = open_worker_repository(scratch.db_url)  # as in a Celery worker process
     try:
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task, seed=0)

@@ -102,6 +102,18 @@ def outcome_fields(out: EvalOutcome, worker: str | None = None) -> dict[str, Any
     }
 
 
+def open_worker_repository(url: str) -> Repository:
+    """The repository of an evaluation worker process (no schema migration: the API does it).
+
+    No ping before each use of a pooled connection (it would be 2 of the 4 database round
+    trips per candidate): `run_candidate` retries its store calls on a fresh connection when the
+    database connection was lost (`with_reconnect`).
+    """
+    from store import SqlRepository, make_engine
+
+    return SqlRepository(make_engine(url, pool_pre_ping=False))
+
+
 #: How long a store call of `run_candidate` is retried while the database connection is lost.
 RECONNECT_SECONDS = 30.0
 

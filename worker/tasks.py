@@ -20,7 +20,7 @@ from celery.signals import worker_process_init
 
 from worker.celery_app import TASK_EVALUATE, app
 from worker.config import get_worker_config
-from worker.evaluation import SpecCache, run_candidate
+from worker.evaluation import SpecCache, open_worker_repository, run_candidate
 
 _lock = threading.Lock()
 _repo = None
@@ -31,13 +31,7 @@ def _repository():
     global _repo
     with _lock:
         if _repo is None:
-            from store import SqlRepository, make_engine
-
-            # No ping before each use of a pooled connection (it would be 2 of the 4 database
-            # round trips per candidate): run_candidate retries its store calls on a fresh
-            # connection when the database connection was lost (worker.evaluation).
-            _repo = SqlRepository(make_engine(get_worker_config().database_url,
-                                              pool_pre_ping=False))
+            _repo = open_worker_repository(get_worker_config().database_url)
         return _repo
 
 

@@ -117,14 +117,14 @@ def test_unknown_candidate_is_reported_missing(setup) -> None:
 
 
 def test_store_calls_survive_a_lost_database_connection(repo) -> None:
-    """The worker's engine does not ping before each use (worker.tasks): a connection the
-    server has dropped fails its next statement, and the call is tried again on a new one."""
-    from store.db import make_engine
+    """A worker's repository does not ping before each use of a pooled connection: a
+    connection the server has dropped fails its next statement, and the call is tried again on a
+    new one."""
+    from worker.evaluation import open_worker_repository
 
-    url = repo.engine.url.render_as_string(hide_password=False)
-    engine = make_engine(url, pool_pre_ping=False)
+    worker_repo = open_worker_repository(repo.engine.url.render_as_string(hide_password=False))
+    engine = worker_repo.engine
     try:
-        worker_repo = SqlRepository(engine)
         job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
         repo.set_job_status(job.id, "running")
         repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5], [0.3, 0.3]])
