@@ -1,7 +1,7 @@
 """Evaluations per second: Celery workers versus a bare process pool, on the same short clips.
 
     .venv/bin/python bench/celery_throughput.py [--candidates 32] [--workers 1 2] [--clip 0.8]
-        [--repeat R] [--store N] [--json]
+        [--repeat 3] [--store N] [--json]
 
 For each worker count N, in the same run and on the same candidates:
   * bare pool: `optim.executors.PoolExecutor(N).map(SimObjective(spec), batch)`;
@@ -219,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--candidates", type=int, default=32)
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     p.add_argument("--clip", type=float, default=0.8, help="clip length in seconds")
-    p.add_argument("--repeat", type=int, default=1,
+    p.add_argument("--repeat", type=int, default=3,
                    help="measurements per side, alternating pool and Celery (medians shown)")
     p.add_argument("--store", type=int, default=0, metavar="N",
                    help="also time run_candidate with a null objective N times")
