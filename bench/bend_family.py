@@ -21,10 +21,12 @@ minimum, or a cap of `--max-evaluations`), so that objectives are comparable.
    below by the rule's 700-evaluation minimum), and evaluations until the best reached within
    1 % of that run's final best ("to converge"; the paper's itr columns are below its 100-
    iteration window, so they count convergence, not the rule).
-With --continuation the family used for 2. and 3. is optimised as the paper did for its speed
-family ("previous optimization results as starting points"): T in increasing order, each run
-warm-started from the previous T's result (files cont_*.json), so that neighbours sit in the same
-basin of the objective. The reference "optimised at T" is then the better of the flat-start and
+With --continuation up|down the family used for 2. and 3. is optimised as the paper did for its
+speed family ("previous optimization results as starting points"): T in increasing (up) or
+decreasing (down) order, the first from the flat spline, each next one warm-started from the
+previous T's result (files contup_*.json / contdown_*.json), so that neighbours tend to sit in
+the same basin of the objective (the bend's objective has more than one, see
+docs/benchmarks.md). The reference "optimised at T" is then the better of the flat-start and
 the continued run at T, so warm starting can only make the comparison harder.
 Prints markdown tables (for docs/benchmarks.md); --json prints the raw numbers instead.
 """
@@ -102,14 +104,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--leave-out", type=float, nargs="*", default=[0.6, 0.8, 1.0])
     p.add_argument("--k", type=int, default=3)
     p.add_argument("--max-evaluations", type=int, default=1500)
-    p.add_argument("--continuation", action="store_true",
+    p.add_argument("--continuation", choices=["up", "down"],
                    help="warm-start each T from the previous one (see module docstring)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
     report: dict = {"members": [], "interpolation": [], "pca": []}
-    prefix = "cont_" if args.continuation else ""
+    prefix = f"cont{args.continuation}_" if args.continuation else ""
 
     def member_row(r: OptimizationResult, T: float, start: str) -> dict:
         return {
@@ -130,10 +132,10 @@ def main(argv: list[str] | None = None) -> int:
         full = flat_start
         if args.continuation:
             full, prev, prev_T = {}, None, 0.0
-            for T in members:
+            for T in sorted(members, reverse=args.continuation == "down"):
                 spec = member_spec(T, args.max_evaluations)
                 x0 = None if prev is None else prev.params
-                full[T] = run_or_load(args.out / f"cont_T{T:g}.json", spec, pool, args.seed,
+                full[T] = run_or_load(args.out / f"{prefix}T{T:g}.json", spec, pool, args.seed,
                                       x0=x0, log=log)
                 report["members"].append(
                     member_row(full[T], T, "flat" if prev is None else f"T = {prev_T:g}"))
