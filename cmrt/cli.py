@@ -41,7 +41,7 @@ def _sequence_cmrt(spec: Any, base: Path) -> Any:
         path = Path(m.cmrt)
         res = OptimizationResult.load(path if path.is_absolute() else base / path)
         # The result's clip started its task at its preparation time; shift it to the motion.
-        parts.append((m.start - res.task_spec.clip.task_start, res.spline))
+        parts.append((m.start - res.task_spec().clip.task_start, res.spline()))
     return superpose(parts) if parts else None
 
 
@@ -55,7 +55,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     source = "none"
     if args.cmrt:
         res = OptimizationResult.load(args.cmrt)
-        cmrt = res.spline
+        cmrt = res.spline()
         source = args.cmrt
     elif not args.zero and spec.task == "sequence":
         cmrt = _sequence_cmrt(spec, Path(args.spec).parent)
