@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 import yaml
@@ -82,3 +87,37 @@ def test_missing_result_file(optimised, capsys):
     assert main(["simulate", str(spec), "--cmrt", "/nonexistent/r.json"]) == 2
     err = capsys.readouterr().err
     assert "/nonexistent/r.json" in err and "cannot read" in err
+
+
+def _optimize_cmd(spec, out, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "cmrt.cli", "optimize", str(spec), "--workers", "2",
+            "--seed", "5", "--out", str(out), "--json", *extra]
+
+
+def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
+    """`cmrt optimize` killed with SIGKILL after a checkpoint, then `--resume`d, writes the
+    result of a run never interrupted (real simulations, a process pool of 2)."""
+    spec = tmp_path / "bend.yaml"
+    spec.write_text(yaml.safe_dump(dict(BEND, optimize={"max_evaluations": 60})))
+    ref_out = tmp_path / "ref.json"
+    subprocess.run(_optimize_cmd(spec, ref_out), check=True, capture_output=True, timeout=300)
+    out = tmp_path / "killed.json"
+    ckpt = out.with_suffix(".ckpt")
+    proc = subprocess.Popen(_optimize_cmd(spec, out), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 120
+    try:
+        while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert proc.poll() is None, "finished before its first checkpoint"
+        os.killpg(proc.pid, signal.SIGKILL)  # the pool's processes too
+    finally:
+        proc.wait(timeout=30)
+    assert ckpt.exists() and not out.exists()
+    subprocess.run(_optimize_cmd(spec, out, "--resume"), check=True, capture_output=True,
+                   timeout=300)
+    a, b = json.loads(ref_out.read_text()), json.loads(out.read_text())
+    for d in (a, b):
+        d.pop("wall_seconds")
+    assert a == b
+    assert a["evaluations"] == 60
