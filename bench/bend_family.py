@@ -139,9 +139,11 @@ def main(argv: list[str] | None = None) -> int:
             full, prev, prev_T = {}, None, 0.0
             for T in sorted(members, reverse=args.continuation == "down"):
                 spec = member_spec(T, args.max_evaluations)
-                x0 = None if prev is None else prev.params
-                full[T] = run_or_load(args.out / f"{prefix}T{T:g}.json", spec, pool, args.seed,
-                                      x0=x0, log=log)
+                if prev is None:  # the first member starts from the flat spline: that run
+                    full[T] = flat_start[T]
+                else:
+                    full[T] = run_or_load(args.out / f"{prefix}T{T:g}.json", spec, pool,
+                                          args.seed, x0=prev.params, log=log)
                 report["members"].append(
                     member_row(full[T], T, "flat" if prev is None else f"T = {prev_T:g}"))
                 prev, prev_T = full[T], T
