@@ -12,8 +12,12 @@ For each worker count N, in the same run and on the same candidates:
 Both sides are warmed up first (processes started, simulators built), then measured `--repeat`
 times, alternating, so that both see the same machine load. Prints median evaluations per
 second, the ratio Celery / bare pool (target: >= 0.90) and Celery's overhead per candidate in
-worker-milliseconds (workers x (1/celery rate - 1/pool rate)). The driver waits with its
-production settings (CMRT_POLL_INTERVAL, default 0.2 s, shorter near a generation's end).
+worker-milliseconds (workers x (1/celery rate - 1/pool rate)), and each side's "busy": the
+simulations' own CPU seconds (as each evaluation measured them) over workers x wall seconds,
+so that what is lost to the machinery (idle gaps between tasks, CPU taken by the broker, the
+database and the Celery parent process) shows apart from slower simulations. The driver
+waits with its production settings (CMRT_POLL_INTERVAL, default 0.2 s, shorter near a
+generation's end).
 `--store N` also times the worker's store path alone: `worker.evaluation.run_candidate` with a
 null objective on a worker's repository, N times in this process against the same PostgreSQL
 database (median and mean wall ms, mean CPU ms).
@@ -76,7 +80,8 @@ def _batch(spec, n: int, seed: int) -> list[np.ndarray]:
 
 @contextlib.contextmanager
 def bare_pool(spec, warm, workers: int):
-    """A warmed-up bare pool; yields `measure(batch) -> eval/s`."""
+    """A warmed-up bare pool; yields `measure(batch) -> (eval/s, busy)`, busy being the
+    simulations' own CPU seconds over workers x wall seconds."""
     from optim.executors import PoolExecutor
     from optim.objective import SimObjective
 
@@ -84,12 +89,12 @@ def bare_pool(spec, warm, workers: int):
     with PoolExecutor(workers) as pool:
         pool.map(fn, warm)
 
-        def measure(batch) -> float:
+        def measure(batch) -> tuple[float, float]:
             t0 = time.perf_counter()
             outs = pool.map(fn, batch)
             dt = time.perf_counter() - t0
             assert all(o.error is None for o in outs)
-            return len(batch) / dt
+            return len(batch) / dt, sum(o.cpu_seconds for o in outs) / (workers * dt)
 
         yield measure
 
@@ -131,7 +136,7 @@ class _Scratch:
 @contextlib.contextmanager
 def celery(spec, warm, workers: int, scratch: _Scratch):
     """A warmed-up Celery worker (the compose command) and the driver's executor; yields
-    `measure(batch) -> (eval/s, repeated attempts)`, one new generation per call."""
+    `measure(batch) -> (eval/s, repeated attempts, busy)`, one new generation per call."""
     from cmrt.settings import Settings
     from store import open_repository
     from worker.celery_app import make_celery
@@ -165,7 +170,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
         ex.evaluate(repo, job.id, job.spec, 0, len(warm), check)
         generation = 0
 
-        def measure(batch) -> tuple[float, int]:
+        def measure(batch) -> tuple[float, int, float]:
             nonlocal generation
             generation += 1
             repo.put_pending_evaluations(job.id, generation, [list(map(float, x)) for x in batch])
@@ -173,7 +178,8 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
             rows = ex.evaluate(repo, job.id, job.spec, generation, len(batch), check)
             dt = time.perf_counter() - t0
             assert all(r.status == "done" for r in rows)
-            return len(batch) / dt, sum(r.attempts - 1 for r in rows)
+            busy = sum(r.cpu_seconds or 0.0 for r in rows) / (workers * dt)
+            return len(batch) / dt, sum(r.attempts - 1 for r in rows), busy
 
         yield measure
     finally:
@@ -234,12 +240,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for n in args.workers:
             warm = _batch(spec, 2 * n, 100 + n)
-            pool_rates, cel_rates, repeated = [], [], 0
+            pool_rates, cel_rates, repeated, pool_busy, cel_busy = [], [], 0, [], []
             with bare_pool(spec, warm, n) as pool, celery(spec, warm, n, scratch) as cel:
                 for _ in range(args.repeat):  # alternate, so both see the same machine load
-                    pool_rates.append(pool(batch))
-                    rate, rep = cel(batch)
+                    rate, busy = pool(batch)
+                    pool_rates.append(rate)
+                    pool_busy.append(busy)
+                    rate, rep, busy = cel(batch)
                     cel_rates.append(rate)
+                    cel_busy.append(busy)
                     repeated += rep
             ratios = [c / p for c, p in zip(cel_rates, pool_rates, strict=True)]
             pool_rate = statistics.median(pool_rates)
@@ -248,7 +257,9 @@ def main(argv: list[str] | None = None) -> int:
                          "celery_eval_per_s": cel_rate, "ratio": statistics.median(ratios),
                          "ratios": ratios,
                          "overhead_ms": 1e3 * n * (1 / cel_rate - 1 / pool_rate),
-                         "repeated": repeated})
+                         "repeated": repeated,
+                         "pool_busy": statistics.median(pool_busy),
+                         "celery_busy": statistics.median(cel_busy)})
         store = store_path(spec, args.store, scratch) if args.store > 0 else None
     finally:
         scratch.close()
@@ -258,10 +269,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"clip {args.clip:g} s, {args.candidates} candidates per measurement, "
           f"median of {args.repeat} alternating measurements per side")
     print(f"{'workers':>7} {'pool eval/s':>12} {'celery eval/s':>14} {'ratio':>6} "
-          f"{'overhead ms/cand':>17}")
+          f"{'overhead ms/cand':>17} {'busy pool':>9} {'busy celery':>11}")
     for r in rows:
         print(f"{r['workers']:>7} {r['pool_eval_per_s']:>12.2f} {r['celery_eval_per_s']:>14.2f} "
-              f"{r['ratio']:>6.1%} {r['overhead_ms']:>17.1f}"
+              f"{r['ratio']:>6.1%} {r['overhead_ms']:>17.1f} {r['pool_busy']:>9.1%} "
+              f"{r['celery_busy']:>11.1%}"
               + (f"   ratios {' '.join(f'{x:.0%}' for x in r['ratios'])}" if args.repeat > 1
                  else ""))
     if store:
