@@ -148,7 +148,7 @@ def interpolate(
     if extrapolated and not extrapolate:
         raise InterpolationError(
             f"{key} = {value:g} is outside the sampled range [{xs[0]:g}, {xs[-1]:g}] of family "
-            f"{fam!r}; pass extrapolate=True to extrapolate"
+            f"{fam!r}; extrapolating past it must be asked for (extrapolate)"
         )
     if value < xs[0]:
         a, b = xs[0], xs[1]
