@@ -98,7 +98,7 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
     """`cmrt optimize` killed with SIGKILL after a checkpoint, then `--resume`d, writes the
     result of a run never interrupted (real simulations, a process pool of 2)."""
     spec = tmp_path / "bend.yaml"
-    spec.write_text(yaml.safe_dump(dict(BEND, optimize={"max_evaluations": 60})))
+    spec.write_text(yaml.safe_dump(dict(BEND, optimize={"max_evaluations": 150})))
     ref_out = tmp_path / "ref.json"
     subprocess.run(_optimize_cmd(spec, ref_out), check=True, capture_output=True, timeout=300)
     out = tmp_path / "killed.json"
@@ -120,4 +120,4 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
     for d in (a, b):
         d.pop("wall_seconds")
     assert a == b
-    assert a["evaluations"] == 60
+    assert a["evaluations"] == 150
