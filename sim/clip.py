@@ -46,6 +46,7 @@ from sim.dynamics import (
     ModelArrays,
     checked_inverse_dynamics,
     forward_kinematics,
+    momentum_bias,
     step_model,
 )
 from sim.evaluation import Evaluation, Traces
@@ -146,7 +147,7 @@ class Simulator:
         entries = []
         for s in spec.schedule:
             start, end = spec.schedule_window(s)
-            entries.append((start, end, s.ramp, dict(s.scale)))
+            entries.append((start, end, s.ramp, dict(s.scale), dict(s.set)))
         self.schedule = GainScheduler(self.params, entries)
         self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self._motions())
         self.controller = MomentumController(ch, self.schedule, self.trajectory)
@@ -220,7 +221,12 @@ class Simulator:
                         prv = _as_pair(cmrt(t - CMRT_VELOCITY_STEP))
                         vel = ((nxt[0] - prv[0]) / (2 * CMRT_VELOCITY_STEP), 0.0)
                     c_ref = (s + cmrt_disp[0], cmrt_disp[1])
-                    self.controller.solve(t, q, qd, c, cd, A_L, A_H, Js, (lo, hi), c_ref, vel)
+                    bias = None
+                    if self.controller.needs_bias(t):
+                        bias = momentum_bias(q, qd, a.parent, a.a_par, a.a_chi, a.mass, a.feet,
+                                             a.sole_local)
+                    self.controller.solve(t, q, qd, c, cd, A_L, A_H, Js, (lo, hi), c_ref, vel,
+                                          bias)
                 tau, code, _cop = checked_inverse_dynamics(M, h, Js, self.controller.qdd,
                                                            sole_x, lo, hi, FRICTION_MU)
                 violation_steps = violation_steps + 1 if code != WRENCH_OK else 0

@@ -18,6 +18,13 @@ c_r = support centre + CMRT displacement; vertically damping only, Ldot_des,y = 
 height target would fight the pose. Angular momentum: the desired CoP is the support centre
 (kept COP_MARGIN inside the support) and Hdot_des = (p_des - c_x) F_y + c_y F_x with
 F = Ldot_des - m g, the ground force that places the CoP there.
+
+Optional CoP objective (`b_p` > 0, scheduled into a task window, off by default as in the
+paper): the QP then uses the velocity-product terms of the momentum rates and of the foot
+constraint (`sim.dynamics.momentum_bias`; the paper ignores them) and adds
+b_p |((c_x - s) F_y + Hdot - c_y F_x) / m|^2, i.e. the implied CoP's distance from the support
+centre times the normal force. During a fast bend the trunk's centripetal reaction moves the
+real CoP by up to ~45 cm from what the plain QP predicts (docs/physics.md).
 """
 
 from __future__ import annotations
@@ -57,6 +64,12 @@ class ControllerParams:
     b_l: float = 1.0  # weight of the linear momentum objective
     b_h: float = 3.0  # weight of the angular momentum objective
     b_t: float = 0.1  # weight of the tracking objective
+    #: Weight of the centre-of-pressure objective (0: off, the paper's controller). With it the
+    #: QP predicts the momentum rates with their velocity-product terms and also minimises
+    #: |(p - s) F_y / m|^2, the implied CoP's distance from the support centre s times the
+    #: normal force (linear in qdd). Meant for a task window only (see docs/physics.md): held
+    #: all the time it takes away the CM's feedback, which goes through the CoP.
+    b_p: float = 0.0
     weights: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_TRACKING_WEIGHTS))
 
     def with_overrides(self, values: dict[str, float]) -> ControllerParams:
@@ -119,26 +132,36 @@ class PoseTrajectory:
 class GainScheduler:
     """Ease-in-ease-out changes of gains over time windows (paper 6.3.2).
 
-    Each entry (start, end, ramp, factors): inside [start, end] the named parameters are
-    multiplied by 1 + (factor - 1) w(t), w rising from 0 to 1 over `ramp` after `start` and
-    falling back to 0 over `ramp` before `end`.
+    Each entry (start, end, ramp, factors[, targets]): inside [start, end] the named parameters
+    are multiplied by 1 + (factor - 1) w(t), and those in `targets` move to
+    value + (target - value) w(t), w rising from 0 to 1 over `ramp` after `start` and falling
+    back to 0 over `ramp` before `end`.
     """
 
-    def __init__(self, base: ControllerParams,
-                 entries: list[tuple[float, float, float, dict[str, float]]]):
+    def __init__(self, base: ControllerParams, entries: list[tuple]):
         self.base = base
-        self.entries = entries
+        self.entries = [e if len(e) == 5 else (*e, {}) for e in entries]
 
     def __call__(self, t: float) -> ControllerParams:
         factors: dict[str, float] = {}
-        for start, end, ramp, scale in self.entries:
+        moves: list[tuple[str, float, float]] = []
+        for start, end, ramp, scale, targets in self.entries:
             if not start <= t <= end:
                 continue
             r = max(min(ramp, 0.5 * (end - start)), 1e-9)
             w = min(ease((t - start) / r)[0], ease((end - t) / r)[0])
             for k, v in scale.items():
                 factors[k] = factors.get(k, 1.0) * (1.0 + (v - 1.0) * w)
-        return self.base.scaled(factors) if factors else self.base
+            moves += [(k, v, w) for k, v in targets.items()]
+        if not factors and not moves:
+            return self.base
+        prm = self.base.scaled(factors)
+        if moves:
+            values = {k: getattr(prm, k) for k, _, _ in moves}
+            for k, target, w in moves:
+                values[k] += (target - values[k]) * w
+            prm = replace(prm, **values)
+        return prm
 
 
 @dataclass
@@ -158,11 +181,21 @@ class MomentumController:
     def reset(self) -> None:
         self.qdd = np.zeros(self.n)
 
+    def needs_bias(self, t: float) -> bool:
+        """Whether `solve` at time t uses the velocity-product terms (scheduled b_p > 0)."""
+        return self.schedule(t).b_p > 0.0
+
     def solve(self, t: float, q: np.ndarray, qd: np.ndarray, c: np.ndarray, cd: np.ndarray,
               A_L: np.ndarray, A_H: np.ndarray, Js: np.ndarray, support: tuple[float, float],
-              c_ref: tuple[float, float], cd_ref: tuple[float, float]) -> np.ndarray:
-        """New qdd* from the state; support = (back edge x, front edge x), c_ref = (x, dy)."""
+              c_ref: tuple[float, float], cd_ref: tuple[float, float],
+              bias: tuple[np.ndarray, float, np.ndarray] | None = None) -> np.ndarray:
+        """New qdd* from the state; support = (back edge x, front edge x), c_ref = (x, dy).
+
+        `bias` = (b_L, b_H, b_S) of `sim.dynamics.momentum_bias`, needed when the scheduled
+        b_p > 0 (`needs_bias`): the QP then predicts Ldot = A_L qdd + b_L, Hdot = A_H qdd + b_H,
+        keeps the feet planted with J_s qdd = -b_S, and adds the CoP objective."""
         prm = self.schedule(t)
+        use_bias = prm.b_p > 0.0 and bias is not None
         m = self.mass
         n = self.n
         L = m * cd
@@ -183,15 +216,28 @@ class MomentumController:
         H = prm.b_l * Al.T @ Al + prm.b_h * np.outer(ah, ah)
         H[hq, hq] += prm.b_t * np.diag(w2)
         H += QDD_REGULARISATION * np.eye(n)
+        rhs_c = np.zeros(Js.shape[0])
+        if use_bias:
+            b_L, b_H, b_S = bias
+            ldot = ldot - b_L  # what A_L qdd must supply
+            hdot = hdot - b_H
+            rhs_c = -b_S
+            # CoP objective: (p - s) F_y = (c_x - s) F_y + Hdot - c_y F_x, linear in qdd
+            dx = c[0] - 0.5 * (lo + hi)
+            a_p = (dx * A_L[1] + A_H - c[1] * A_L[0]) / m
+            r_p = (dx * (b_L[1] + m * GRAVITY) + b_H - c[1] * b_L[0]) / m
+            H += prm.b_p * np.outer(a_p, a_p)
         g = prm.b_l * Al.T @ (ldot / m) + prm.b_h * ah * (hdot / m)
         g[hq] += prm.b_t * w2 * qdd_des
+        if use_bias:
+            g -= prm.b_p * a_p * r_p
         k = Js.shape[0]
         K = np.zeros((n + k, n + k))
         K[:n, :n] = H
         K[:n, n:] = Js.T
         K[n:, :n] = Js
         K[n:, n:] = -CONSTRAINT_REGULARISATION * np.eye(k)
-        rhs = np.concatenate([g, np.zeros(k)])
+        rhs = np.concatenate([g, rhs_c])
         self.qdd = np.linalg.solve(K, rhs)[:n]
         return self.qdd
 

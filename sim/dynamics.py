@@ -124,17 +124,13 @@ def point_jacobian(r, b, o, path, n):
 
 
 @njit(cache=True)
-def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
-    """Mass matrix M (n, n), bias h = C + G (n,), CoM c, its velocity, momentum rows.
-
-    Returns (M, h, alpha, p, o, omega, c, cd, A_L, A_H): A_L (2, n) maps qd to linear momentum,
-    A_H (n,) maps qd to the angular momentum about the CoM.
-    """
+def velocity_accelerations(qd, parent, p, o):
+    """Body angular velocities omega (nb,) and the velocity-product (centripetal) accelerations
+    of the body CoMs at qdd = 0, acc (nb, 2): the part of every point's acceleration that does
+    not depend on qdd."""
     nb = parent.shape[0]
-    n = q.shape[0]
-    alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
     omega = np.empty(nb)
-    acc = np.zeros((nb, 2))  # velocity-product (centripetal) CoM accelerations, qdd = 0
+    acc = np.zeros((nb, 2))
     omega[0] = qd[2]
     for b in range(1, nb):
         par = parent[b]
@@ -145,6 +141,57 @@ def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
         aoy = acc[par, 1] - w2p * (o[b, 1] - p[par, 1])
         acc[b, 0] = aox - w2 * (p[b, 0] - o[b, 0])
         acc[b, 1] = aoy - w2 * (p[b, 1] - o[b, 1])
+    return omega, acc
+
+
+@njit(cache=True)
+def momentum_bias(q, qd, parent, a_par, a_chi, mass, feet, sole_local):
+    """The velocity-product terms that `A_L qdd`, `A_H qdd` and `J_s qdd` leave out:
+
+        Ldot = A_L qdd + b_L,   Hdot (about the CoM) = A_H qdd + b_H,
+        a foot stays planted when J_s qdd + b_S = 0.
+
+    Returns (b_L (2,), b_H, b_S (3 nf,)); b_S holds the sole centres' accelerations at
+    qdd = 0 and 0 in the foot-angle rows (no velocity-product term in the plane).
+    b_H = sum_b (p_b - c) x m_b acc_b: at qdd = 0 no body has an angular acceleration, and the
+    d/dt of (p_b - c) applied to m_b v_b sums to zero over the bodies.
+    """
+    alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
+    omega, acc = velocity_accelerations(qd, parent, p, o)
+    nb = parent.shape[0]
+    mtot = 0.0
+    c = np.zeros(2)
+    bL = np.zeros(2)
+    for b in range(nb):
+        mtot += mass[b]
+        c += mass[b] * p[b]
+        bL += mass[b] * acc[b]
+    c /= mtot
+    bH = 0.0
+    for b in range(nb):
+        bH += mass[b] * ((p[b, 0] - c[0]) * acc[b, 1] - (p[b, 1] - c[1]) * acc[b, 0])
+    nf = feet.shape[0]
+    bS = np.zeros(3 * nf)
+    for f in range(nf):
+        b = feet[f]
+        s = body_point(alpha, p, b, sole_local[f])
+        w2 = omega[b] * omega[b]
+        bS[3 * f] = acc[b, 0] - w2 * (s[0] - p[b, 0])
+        bS[3 * f + 1] = acc[b, 1] - w2 * (s[1] - p[b, 1])
+    return bL, bH, bS
+
+
+@njit(cache=True)
+def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
+    """Mass matrix M (n, n), bias h = C + G (n,), CoM c, its velocity, momentum rows.
+
+    Returns (M, h, alpha, p, o, omega, c, cd, A_L, A_H): A_L (2, n) maps qd to linear momentum,
+    A_H (n,) maps qd to the angular momentum about the CoM.
+    """
+    nb = parent.shape[0]
+    n = q.shape[0]
+    alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
+    omega, acc = velocity_accelerations(qd, parent, p, o)
     M = np.zeros((n, n))
     h = np.zeros(n)
     A_L = np.zeros((2, n))

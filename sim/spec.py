@@ -26,7 +26,8 @@ HINGE_NAMES: tuple[str, ...] = (
 )
 
 #: Names accepted in controller overrides and gain schedules (see sim.controller.ControllerParams).
-GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l", "b_h", "b_t")
+GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l", "b_h", "b_t",
+                               "b_p")
 
 MAX_CLIP_SECONDS = 20.0
 MAX_FORCE_N = 5000.0
@@ -122,22 +123,33 @@ class Push(_Strict):
 class GainSchedule(_Strict):
     """Ease-in-ease-out change of controller gains and weights (paper 6.3.2).
 
-    `scale` multiplies the named parameters (1.15 is "+15 %"). The window defaults to the task
+    `scale` multiplies the named parameters (1.15 is "+15 %"); `set` moves them to a value
+    (for one whose default is 0, such as the CoP weight b_p). The window defaults to the task
     window; `ramp` is the ease time in seconds at each end of the window.
     """
 
-    scale: dict[str, Annotated[float, Field(gt=0.0, le=20.0)]]
+    scale: dict[str, Annotated[float, Field(gt=0.0, le=20.0)]] = {}
+    set: dict[str, Annotated[float, Field(ge=0.0, le=1e4)]] = {}
     start: Annotated[float, Field(ge=0.0)] | None = None
     end: Annotated[float, Field(ge=0.0)] | None = None
     ramp: Annotated[float, Field(ge=0.0, le=5.0)] = 0.1
 
-    @field_validator("scale")
+    @field_validator("scale", "set")
     @classmethod
     def _names(cls, v: dict[str, float]) -> dict[str, float]:
         for name in v:
             if name not in GAIN_NAMES:
                 raise ValueError(f"unknown gain {name!r}; gains are {', '.join(GAIN_NAMES)}")
         return v
+
+    @model_validator(mode="after")
+    def _something(self) -> GainSchedule:
+        if not self.scale and not self.set:
+            raise ValueError("a schedule entry needs `scale` or `set`")
+        both = sorted(set(self.scale) & set(self.set))
+        if both:
+            raise ValueError(f"{', '.join(both)}: in both `scale` and `set`")
+        return self
 
 
 class CmrtConfig(_Strict):

@@ -119,6 +119,21 @@ def _unknown_gain_in_controller(d):
     return "slow_bend", "controller", "unknown gain 'kl'"
 
 
+def _schedule_without_changes(d):
+    d["schedule"] = [{"ramp": 0.05}]
+    return "slow_bend", "schedule.0", "needs `scale` or `set`"
+
+
+def _schedule_scale_and_set_same_gain(d):
+    d["schedule"] = [{"scale": {"b_p": 2.0}, "set": {"b_p": 1.0}}]
+    return "slow_bend", "schedule.0", "b_p: in both `scale` and `set`"
+
+
+def _schedule_set_negative(d):
+    d["schedule"] = [{"set": {"b_p": -1.0}}]
+    return "slow_bend", "schedule.0.set.b_p", "greater than or equal to 0"
+
+
 def _schedule_end_before_start(d):
     d["schedule"] = [{"scale": {"k_t": 2.0}, "start": 1.3, "end": 1.2}]
     return "slow_bend", "schedule[0]", "end must be after start"
@@ -139,6 +154,7 @@ BAD_SPECS = [
     _unknown_top_field, _unknown_nested_field, _missing_push_block, _push_block_on_bend,
     _push_past_clip_end, _push_duration_past_end, _negative_force, _unknown_gain_in_schedule,
     _unknown_gain_in_controller, _schedule_end_before_start, _bad_name, _unknown_task,
+    _schedule_without_changes, _schedule_scale_and_set_same_gain, _schedule_set_negative,
 ]
 
 
