@@ -61,10 +61,11 @@ ACTIVE_SECONDS = 1.6  # s, task + decay: the clip stays preparation + 1.6 s for 
 CONVERGED_WITHIN = 0.01  # "converged" = best within 1 % of the run's final best
 
 
-def member_spec(duration: float, max_evaluations: int) -> TaskSpec:
-    data = yaml.safe_load(TEMPLATE.read_text())
-    data["name"] = f"bend_T{duration:g}"
-    data["family"] = "bend"
+def member_spec(duration: float, max_evaluations: int, template: Path = TEMPLATE) -> TaskSpec:
+    data = yaml.safe_load(template.read_text())
+    family = data.get("family") or "bend"
+    data["name"] = f"{family}_T{duration:g}"
+    data["family"] = family
     data["clip"] = {
         "preparation": data["clip"]["preparation"],
         "duration": duration,
@@ -111,6 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-evaluations", type=int, default=1500)
     p.add_argument("--continuation", choices=["up", "down"],
                    help="warm-start each T from the previous one (see module docstring)")
+    p.add_argument("--template", type=Path, default=TEMPLATE,
+                   help="the spec every member copies but for its timing (default: the fast "
+                        "bend; its schedule windows without start/end follow each member's task)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -130,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
         members = sorted(set(args.durations) | set(args.between))
         flat_start: dict[float, OptimizationResult] = {}
         for T in members:
-            spec = member_spec(T, args.max_evaluations)
+            spec = member_spec(T, args.max_evaluations, args.template)
             flat_start[T] = run_or_load(args.out / f"full_T{T:g}.json", spec, pool, args.seed,
                                         log=log)
             report["members"].append(member_row(flat_start[T], T, "flat"))
@@ -138,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.continuation:
             full, prev, prev_T = {}, None, 0.0
             for T in sorted(members, reverse=args.continuation == "down"):
-                spec = member_spec(T, args.max_evaluations)
+                spec = member_spec(T, args.max_evaluations, args.template)
                 if prev is None:  # the first member starts from the flat spline: that run
                     full[T] = flat_start[T]
                 else:
@@ -153,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
 
         samples = [full[T] for T in args.durations]
         for T in args.between:
-            spec = member_spec(T, args.max_evaluations)
+            spec = member_spec(T, args.max_evaluations, args.template)
             interp = interpolate(samples, T, key="duration")
             fn = SimObjective(spec)
             out_i, out_flat = pool.map(fn, [interp.params(spec), flat_params(spec)])
@@ -169,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
             pool_T = args.durations if args.basis_from == "durations" else members
             others = [full[d] for d in pool_T if d != T]
             basis = build_basis(others, k=args.k)
-            spec = member_spec(T, args.max_evaluations)
+            spec = member_spec(T, args.max_evaluations, args.template)
             tag = "" if args.basis_from == "durations" else "all_"
             red = run_or_load(args.out / f"{prefix}reduced_k{args.k}_{tag}T{T:g}.json", spec,
                               pool, args.seed, basis=basis, log=log)

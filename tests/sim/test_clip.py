@@ -180,7 +180,7 @@ def test_fast_bend_without_cmrt_is_much_worse(slow_bend, fast_bend):
 def test_task_window_cop_objective_halves_the_reactive_fast_bend(fast_bend):
     """examples/fast_bend_cop.yaml (the fast bend with b_p = 3 scheduled over the task): the
     reactive controller alone stands at about half the plain fast bend's objective (measured
-    1.3964 against 2.8268, 0.49); outside its window the controller is the plain one."""
+    1.4424 against 2.8268, 0.51); before its window the controller is the plain one."""
     cop = evaluate(load_spec(EXAMPLES / "fast_bend_cop.yaml"), traces=True)
     print(f"fast bend with the CoP objective: {cop.objective:.4f} m "
           f"({cop.objective / fast_bend.objective:.2f} x without)")
