@@ -396,12 +396,13 @@ def test_evaluation_writes_leave_the_connection_settings_alone(db) -> None:
 
 def test_evaluation_writes_commit_asynchronously_on_postgresql(db) -> None:
     """PostgreSQL: the per-candidate writes do not wait for a WAL flush each (see
-    SqlRepository), the other writes do. Counted with the server's WAL sync counter; the bound
-    leaves room for other sessions on the same server.
+    SqlRepository), the other writes do. Counted with the server's WAL sync counter.
 
-    PostgreSQL 15 reports a backend's statistics to pg_stat_wal lazily (at most once a second,
-    or after 10 s idle), so the writing backend, the only connection of its pool, is made to
-    flush them (`pg_stat_force_next_flush()`) before every reading."""
+    The counter is server-wide and PostgreSQL 15 reports each backend's share lazily (at most
+    once a second, or after 10 s idle), so other sessions' syncs can land in any window: the
+    writing backend (the only connection of its pool) is made to flush before every reading
+    (`pg_stat_force_next_flush()`), and each phase is measured in several interleaved trials
+    whose minimum is taken (others' syncs only ever add)."""
     url, engine0 = db
     if engine0.dialect.name != "postgresql":
         pytest.skip("PostgreSQL only")
@@ -418,21 +419,26 @@ def test_evaluation_writes_commit_asynchronously_on_postgresql(db) -> None:
                 return int(c.execute(text("SELECT wal_sync FROM pg_stat_wal")).scalar())
 
         job = new_job(repo)
-        n = 60
-        repo.put_pending_evaluations(job.id, 0, [[0.5]] * (2 * n))
-        before = wal_syncs()
-        for i in range(n):
-            repo.claim_evaluation(job.id, 0, i)
-            repo.store_result(job.id, 0, i, objective=1.0, fell=False, cpu_seconds=0.0)
-        asynchronous = wal_syncs() - before
-        before = wal_syncs()
-        for i in range(n, 2 * n):
-            repo.start_attempt(job.id, 0, i)
-            repo.record_evaluation(job.id, 0, i, objective=1.0, fell=False, cpu_seconds=0.0)
-        synchronous = wal_syncs() - before
+        n, trials = 40, 5
+        repo.put_pending_evaluations(job.id, 0, [[0.5]] * (2 * n * trials))
+        asynchronous, synchronous = [], []
+        for k in range(trials):
+            first = 2 * n * k
+            before = wal_syncs()
+            for i in range(first, first + n):
+                repo.claim_evaluation(job.id, 0, i)
+                repo.store_result(job.id, 0, i, objective=1.0, fell=False, cpu_seconds=0.0)
+            asynchronous.append(wal_syncs() - before)
+            before = wal_syncs()
+            for i in range(first + n, first + 2 * n):
+                repo.start_attempt(job.id, 0, i)
+                repo.record_evaluation(job.id, 0, i, objective=1.0, fell=False,
+                                       cpu_seconds=0.0)
+            synchronous.append(wal_syncs() - before)
     finally:
         engine.dispose()
-    assert asynchronous < n // 2 <= synchronous, (asynchronous, synchronous)
+    print(f"WAL syncs per {n} writes: per-candidate {asynchronous}, others {synchronous}")
+    assert min(asynchronous) < n // 2 <= min(synchronous), (asynchronous, synchronous)
 
 
 def _claim_and_store(repo: SqlRepository, job_id: str, seed: int) -> list[tuple[int, bool]]:
