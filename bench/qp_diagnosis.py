@@ -9,7 +9,7 @@ At every QP solve (60 Hz) of one clip it prints
     ignores the velocity-product terms, as the paper does),
   * the centre of pressure those planned rates imply, relative to the support centre:
     `planned`: p = c_x + (Hdot - c_y F_x) / F_y with the model's rates, and `planned+v`: the
-    same with the velocity-product terms added (from finite differences of A(q) qd along qd),
+    same with the velocity-product terms added (`sim.dynamics.momentum_bias`),
   * the CP that ODE measured at that step.
 The summary counts the solves whose planned CoP lies outside the support and the RMS gap between
 `planned+v` and the measured CP. No assertions: a diagnostic for the controller's limits (see
@@ -29,25 +29,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sim.clip import Simulator  # noqa: E402
-from sim.dynamics import GRAVITY, dynamics  # noqa: E402
+from sim.dynamics import GRAVITY, momentum_bias  # noqa: E402
 from sim.spec import load_spec  # noqa: E402
 from sim.world import DT  # noqa: E402
-
-#: Step along qd (s) of the central difference that gives d/dt (A(q)) qd.
-BIAS_STEP_S = 1e-6
-
-
-def velocity_terms(sim: Simulator, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, float]:
-    """(dA_L/dt qd, dA_H/dt qd): the momentum rates at qdd = 0."""
-    args = sim.arrays.args()
-
-    def momenta(x: np.ndarray) -> tuple[np.ndarray, float]:
-        out = dynamics(x, qd, *args)
-        return out[8] @ qd, float(out[9] @ qd)
-
-    lp, hp = momenta(q + BIAS_STEP_S * qd)
-    lm, hm = momenta(q - BIAS_STEP_S * qd)
-    return (lp - lm) / (2 * BIAS_STEP_S), (hp - hm) / (2 * BIAS_STEP_S)
 
 
 def diagnose(spec_path: str, cmrt_path: str | None) -> tuple[list[dict], float]:
@@ -64,23 +48,21 @@ def diagnose(spec_path: str, cmrt_path: str | None) -> tuple[list[dict], float]:
 
     def recording_solve(t, q, qd, c, cd, A_L, A_H, Js, support, c_ref, cd_ref, *rest):
         qdd = solve(t, q, qd, c, cd, A_L, A_H, Js, support, c_ref, cd_ref, *rest)
-        prm, m = ctl.schedule(t), ctl.mass
-        L = m * cd
-        ldx = prm.k_l * m * (c_ref[0] - c[0]) + prm.d_l * (m * cd_ref[0] - L[0])
-        ldy = prm.k_l * m * c_ref[1] - prm.d_l_vertical * L[1]
+        m = ctl.mass
+        ldot_des, hdot_des = ctl.desired_rates(ctl.schedule(t), c, cd, support, c_ref, cd_ref)
         lo, hi = support
         centre = 0.5 * (lo + hi)
-        f_des = np.array([ldx, ldy + m * GRAVITY])
-        hdot_des = (centre - c[0]) * f_des[1] + c[1] * f_des[0]
         l_qp, h_qp = A_L @ qdd, float(A_H @ qdd)
-        bl, bh = velocity_terms(sim, q, qd)
+        a = sim.arrays
+        bl, bh, _ = momentum_bias(q, qd, a.parent, a.a_par, a.a_chi, a.mass, a.feet,
+                                  a.sole_local)
 
         def cop(ldot: np.ndarray, hdot: float) -> float:
             f = ldot + np.array([0.0, m * GRAVITY])
             return float(c[0] + (hdot - c[1] * f[0]) / f[1] - centre)
 
         rows.append({
-            "t": t, "ldot_x_des": float(ldx), "ldot_x_qp": float(l_qp[0]),
+            "t": t, "ldot_x_des": float(ldot_des[0]), "ldot_x_qp": float(l_qp[0]),
             "hdot_des": float(hdot_des), "hdot_qp": h_qp,
             "planned": cop(l_qp, h_qp), "planned_v": cop(l_qp + bl, h_qp + bh),
             "half_support": 0.5 * (hi - lo),

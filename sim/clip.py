@@ -221,12 +221,10 @@ class Simulator:
                         prv = _as_pair(cmrt(t - CMRT_VELOCITY_STEP))
                         vel = ((nxt[0] - prv[0]) / (2 * CMRT_VELOCITY_STEP), 0.0)
                     c_ref = (s + cmrt_disp[0], cmrt_disp[1])
-                    bias = None
-                    if self.controller.needs_bias(t):
-                        bias = momentum_bias(q, qd, a.parent, a.a_par, a.a_chi, a.mass, a.feet,
-                                             a.sole_local)
-                    self.controller.solve(t, q, qd, c, cd, A_L, A_H, Js, (lo, hi), c_ref, vel,
-                                          bias)
+                    self.controller.solve(
+                        t, q, qd, c, cd, A_L, A_H, Js, (lo, hi), c_ref, vel,
+                        lambda q=q, qd=qd: momentum_bias(q, qd, a.parent, a.a_par, a.a_chi,
+                                                         a.mass, a.feet, a.sole_local))
                 tau, code, _cop = checked_inverse_dynamics(M, h, Js, self.controller.qdd,
                                                            sole_x, lo, hi, FRICTION_MU)
                 violation_steps = violation_steps + 1 if code != WRENCH_OK else 0

@@ -29,6 +29,7 @@ real CoP by up to ~45 cm from what the plain QP predicts (docs/physics.md).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -181,23 +182,11 @@ class MomentumController:
     def reset(self) -> None:
         self.qdd = np.zeros(self.n)
 
-    def needs_bias(self, t: float) -> bool:
-        """Whether `solve` at time t uses the velocity-product terms (scheduled b_p > 0)."""
-        return self.schedule(t).b_p > 0.0
-
-    def solve(self, t: float, q: np.ndarray, qd: np.ndarray, c: np.ndarray, cd: np.ndarray,
-              A_L: np.ndarray, A_H: np.ndarray, Js: np.ndarray, support: tuple[float, float],
-              c_ref: tuple[float, float], cd_ref: tuple[float, float],
-              bias: tuple[np.ndarray, float, np.ndarray] | None = None) -> np.ndarray:
-        """New qdd* from the state; support = (back edge x, front edge x), c_ref = (x, dy).
-
-        `bias` = (b_L, b_H, b_S) of `sim.dynamics.momentum_bias`, needed when the scheduled
-        b_p > 0 (`needs_bias`): the QP then predicts Ldot = A_L qdd + b_L, Hdot = A_H qdd + b_H,
-        keeps the feet planted with J_s qdd = -b_S, and adds the CoP objective."""
-        prm = self.schedule(t)
-        use_bias = prm.b_p > 0.0 and bias is not None
+    def desired_rates(self, prm: ControllerParams, c: np.ndarray, cd: np.ndarray,
+                      support: tuple[float, float], c_ref: tuple[float, float],
+                      cd_ref: tuple[float, float]) -> tuple[np.ndarray, float]:
+        """(Ldot_des (2,), Hdot_des about the CoM) for the gains `prm` (see the module doc)."""
         m = self.mass
-        n = self.n
         L = m * cd
         ldot = np.array([
             prm.k_l * m * (c_ref[0] - c[0]) + prm.d_l * (m * cd_ref[0] - L[0]),
@@ -206,7 +195,27 @@ class MomentumController:
         F = ldot + np.array([0.0, m * GRAVITY])
         lo, hi = support
         p_des = min(max(0.5 * (lo + hi), lo + COP_MARGIN), hi - COP_MARGIN)
-        hdot = (p_des - c[0]) * F[1] + c[1] * F[0]
+        return ldot, (p_des - c[0]) * F[1] + c[1] * F[0]
+
+    def solve(self, t: float, q: np.ndarray, qd: np.ndarray, c: np.ndarray, cd: np.ndarray,
+              A_L: np.ndarray, A_H: np.ndarray, Js: np.ndarray, support: tuple[float, float],
+              c_ref: tuple[float, float], cd_ref: tuple[float, float],
+              bias: Callable[[], tuple[np.ndarray, float, np.ndarray]] | None = None,
+              ) -> np.ndarray:
+        """New qdd* from the state; support = (back edge x, front edge x), c_ref = (x, dy).
+
+        `bias` returns (b_L, b_H, b_S) of `sim.dynamics.momentum_bias` for this state; it is
+        called only when the scheduled b_p > 0 (and must then be given): the QP then predicts
+        Ldot = A_L qdd + b_L, Hdot = A_H qdd + b_H, keeps the feet planted with
+        J_s qdd = -b_S, and adds the CoP objective."""
+        prm = self.schedule(t)
+        use_bias = prm.b_p > 0.0
+        if use_bias and bias is None:
+            raise ValueError("b_p > 0 needs the velocity-product terms (bias)")
+        m = self.mass
+        n = self.n
+        lo, hi = support
+        ldot, hdot = self.desired_rates(prm, c, cd, support, c_ref, cd_ref)
         q_r, qd_r, qdd_r = self.trajectory(t)
         hq = slice(ROOT_DOF, n)
         qdd_des = prm.k_t * (q_r - q[hq]) + prm.d_t * (qd_r - qd[hq]) + qdd_r
@@ -218,7 +227,7 @@ class MomentumController:
         H += QDD_REGULARISATION * np.eye(n)
         rhs_c = np.zeros(Js.shape[0])
         if use_bias:
-            b_L, b_H, b_S = bias
+            b_L, b_H, b_S = bias()
             ldot = ldot - b_L  # what A_L qdd must supply
             hdot = hdot - b_H
             rhs_c = -b_S

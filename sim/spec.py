@@ -143,7 +143,7 @@ class GainSchedule(_Strict):
         return v
 
     @model_validator(mode="after")
-    def _something(self) -> GainSchedule:
+    def _changes_something(self) -> GainSchedule:
         if not self.scale and not self.set:
             raise ValueError("a schedule entry needs `scale` or `set`")
         both = sorted(set(self.scale) & set(self.set))

@@ -61,7 +61,7 @@ def test_cop_objective_brings_the_planned_cop_to_the_support_centre():
         def planned_cop(b_p: float) -> float:
             sim.controller.schedule = GainScheduler(ControllerParams(b_p=b_p), [])
             qdd = sim.controller.solve(0.3, q, qd, c, cd, A_L, A_H, Js, (lo, hi),
-                                       (centre, 0.0), (0.0, 0.0), bias if b_p else None)
+                                       (centre, 0.0), (0.0, 0.0), lambda: bias)
             f = A_L @ qdd + bias[0] + np.array([0.0, m * GRAVITY])
             hdot = A_H @ qdd + bias[1]
             # the feet stay planted to first order: J_s qdd + b_S = 0 with the bias
