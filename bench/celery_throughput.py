@@ -145,7 +145,8 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
 
     env = dict(os.environ, CMRT_DATABASE_URL=scratch.db_url, CMRT_BROKER_URL=scratch.broker,
                PYTHONUNBUFFERED="1")
-    env.pop("CMRT_FAULT_CRASH_ON", None)
+    for k in ("CMRT_FAULT_CRASH_ON", "CMRT_FAULT_DELAY_ON"):
+        env.pop(k, None)
     repo = open_repository(scratch.db_url)
     settings = Settings(database_url=scratch.db_url, broker_url=scratch.broker)
     cfg = WorkerConfig(settings)

@@ -171,6 +171,7 @@ def run_candidate(
         return {"status": "skipped", "job_status": claim.job_status}
     spec, objective = with_reconnect(cache.get, repo, job_id)
     faults.maybe_crash(spec.name, generation, index)
+    faults.maybe_delay(spec.name, generation, index)
     out = evaluate_one(objective, np.asarray(claim.params, dtype=float))
     changed = with_reconnect(
         repo.store_result,

@@ -24,9 +24,13 @@ OVERRIDES = {
     "CMRT_WORKER_CONCURRENCY": "1",
     "CMRT_LOG_LEVEL": "INFO",
 }
-#: Fault-injection hook of the workers (worker/faults.py): candidate 1 of generation 0 of any
-#: job whose spec is named "poison" kills its worker process on every attempt.
-WORKER_FAULTS = {"CMRT_FAULT_CRASH_ON": "poison:0:1"}
+#: Fault-injection hooks of the workers (worker/faults.py): candidate 1 of generation 0 of any
+#: job whose spec is named "poison" kills its worker process on every attempt; candidate 0 of
+#: generation 1 of the fault drills' jobs (named "it_fault_*") takes FAULT_WINDOW_S longer, so
+#: a drill can strike while that generation is half done (its clips take ~50 ms each).
+FAULT_WINDOW_S = 3.0
+WORKER_FAULTS = {"CMRT_FAULT_CRASH_ON": "poison:0:1",
+                 "CMRT_FAULT_DELAY_ON": f"it_fault_*:1:0:{FAULT_WINDOW_S:g}"}
 
 
 @pytest.fixture(scope="session")

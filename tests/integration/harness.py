@@ -196,7 +196,8 @@ class Topology:
     # -- application services ----------------------------------------------------------------
     def env_for(self, name: str, extra: dict[str, str] | None = None) -> dict[str, str]:
         env = dict(os.environ)
-        env.pop("CMRT_FAULT_CRASH_ON", None)
+        for k in ("CMRT_FAULT_CRASH_ON", "CMRT_FAULT_DELAY_ON"):
+            env.pop(k, None)
         for k, v in (self._service(name).get("environment") or {}).items():
             env[k] = interpolate(v, {**self.overrides})
         redis = f"redis://127.0.0.1:{self.redis_port}"

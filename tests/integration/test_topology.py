@@ -11,7 +11,7 @@ import json
 import time
 
 import pytest
-from conftest import bend, bookkeeping, submit, wait_job
+from conftest import WORKER_FAULTS, bend, bookkeeping, submit, wait_job
 
 pytestmark = [pytest.mark.redis, pytest.mark.postgres]
 
@@ -55,7 +55,10 @@ def test_jobs_converge_land_in_library_and_interpolate_and_cancel(api):
 
 
 def _wait_mid_generation(api, job_id, generation, timeout=90):
-    """Until `generation` has at least one stored result and at least one still pending."""
+    """Until `generation` has at least one stored result and at least one still pending.
+
+    For jobs named "it_fault_*" the workers hold candidate 0 of generation 1 open for
+    FAULT_WINDOW_S (conftest.WORKER_FAULTS), so that state lasts seconds, not milliseconds."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         gens = api.get(f"/jobs/{job_id}/evaluations").json()["generations"]
@@ -80,7 +83,7 @@ def _check_complete(api, job_id, what):
 
 
 def test_worker_kill9_mid_generation(api, topology):
-    job_id = submit(api, bend("it_kill_worker", 0.35, popsize=6, max_evaluations=18), seed=2)
+    job_id = submit(api, bend("it_fault_kill_worker", 0.35, popsize=6, max_evaluations=18), seed=2)
     _wait_mid_generation(api, job_id, 1)
     t0 = time.monotonic()
     while True:  # a worker in the middle of an evaluation
@@ -90,13 +93,13 @@ def test_worker_kill9_mid_generation(api, topology):
         time.sleep(0.02)
     assert victim is not None
     victim.kill9()  # the whole worker (main process + pool child), like `docker kill`
-    topology.start("worker", {"CMRT_FAULT_CRASH_ON": "poison:0:1"})  # compose restarts it
+    topology.start("worker", WORKER_FAULTS)  # compose restarts it
     _, book = _check_complete(api, job_id, "worker kill -9")
     assert book["repeated"] <= 2  # only what the killed worker was evaluating
 
 
 def test_api_killed_and_restarted_resumes_from_last_generation(api, topology):
-    job_id = submit(api, bend("it_kill_api", 0.35, popsize=6, max_evaluations=24), seed=3)
+    job_id = submit(api, bend("it_fault_kill_api", 0.35, popsize=6, max_evaluations=24), seed=3)
     _wait_mid_generation(api, job_id, 1)
     before = api.get(f"/jobs/{job_id}/generations").json()["generations"]
     topology.procs["api"][-1].kill9()
@@ -125,7 +128,7 @@ def test_poison_candidate_fails_its_job_while_others_finish(api, topology):
 
 
 def test_redis_restarted_mid_job(api, topology):
-    job_id = submit(api, bend("it_redis_restart", 0.35, popsize=6, max_evaluations=18), seed=5)
+    job_id = submit(api, bend("it_fault_redis", 0.35, popsize=6, max_evaluations=18), seed=5)
     _wait_mid_generation(api, job_id, 1)
     topology.stop_redis(wipe=True)  # broker gone with its queues (no persistence survives)
     time.sleep(3.0)
@@ -147,7 +150,7 @@ def test_database_connections_dropped_mid_job(api, topology):
         return sum(p.log.read_text(errors="replace").count("raised unexpected")
                    for p in topology.procs["worker"])
 
-    job_id = submit(api, bend("it_db_drop", 0.35, popsize=6, max_evaluations=18), seed=6)
+    job_id = submit(api, bend("it_fault_db_drop", 0.35, popsize=6, max_evaluations=18), seed=6)
     _wait_mid_generation(api, job_id, 1)
     failures = task_failures()
     dropped = topology.drop_database_connections()
