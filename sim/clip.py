@@ -49,11 +49,15 @@ from sim.dynamics import (
     momentum_bias,
     step_model,
 )
+from sim.errors import SpecError
 from sim.evaluation import Evaluation, Traces
 from sim.spec import TaskSpec
 from sim.world import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, World
 
 FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
+#: Narrowest room (m) the CoP box may leave on each side of the support centre.
+MIN_COP_BOX_WIDTH = 0.005
+
 #: The controller has lost balance when its support wrench stays inadmissible this long (s)...
 WRENCH_VIOLATION_LIMIT = 0.25
 #: ... or when a heel or toe has lifted this high (m): the foot is rotating about an edge and
@@ -124,6 +128,18 @@ def _as_pair(value: Any) -> tuple[float, float]:
     return float(value), 0.0
 
 
+def _check_cop_box(spec: TaskSpec, support_length: float) -> None:
+    """The CoP box (controller.cop_box, schedule `set`) must leave room between its bounds."""
+    values = [("controller.cop_box", spec.controller.get("cop_box"))] + [
+        (f"schedule.{i}.set.cop_box", s.set.get("cop_box")) for i, s in enumerate(spec.schedule)]
+    for where, v in values:
+        if v is not None and not v < 0.5 * support_length - MIN_COP_BOX_WIDTH:
+            raise SpecError(
+                f"{where}: must be below half the support length minus {MIN_COP_BOX_WIDTH} m "
+                f"({0.5 * support_length - MIN_COP_BOX_WIDTH:.3f} m for this character), "
+                f"got {v:g}")
+
+
 class Simulator:
     """A task spec's world and controller, built once and reset for each run."""
 
@@ -131,6 +147,7 @@ class Simulator:
         self.spec = spec
         ch = load_character(spec.character.model, spec.character.height, spec.character.mass)
         self.character = ch
+        _check_cop_box(spec, float(ch.toe0[:, 0].max() - ch.heel0[:, 0].min()))
         self.arrays = ModelArrays.from_character(ch)
         self.world = World(ch, self.arrays)
         self.q0 = standing_state(ch, self.arrays)

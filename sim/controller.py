@@ -71,6 +71,11 @@ class ControllerParams:
     #: normal force (linear in qdd). Meant for a task window only (see docs/physics.md): held
     #: all the time it takes away the CM's feedback, which goes through the CoP.
     b_p: float = 0.0
+    #: Hard CoP constraint (m; 0: off). With it > 0 the QP predicts the momentum rates with
+    #: their velocity-product terms, as for b_p, and keeps the implied CoP at least this far
+    #: inside the heel and toe edges (an inequality: inactive while the plan's CoP is inside,
+    #: so it leaves the CM's feedback alone; see docs/physics.md).
+    cop_box: float = 0.0
     weights: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_TRACKING_WEIGHTS))
 
     def with_overrides(self, values: dict[str, float]) -> ControllerParams:
@@ -209,9 +214,9 @@ class MomentumController:
         Ldot = A_L qdd + b_L, Hdot = A_H qdd + b_H, keeps the feet planted with
         J_s qdd = -b_S, and adds the CoP objective."""
         prm = self.schedule(t)
-        use_bias = prm.b_p > 0.0
+        use_bias = prm.b_p > 0.0 or prm.cop_box > 0.0
         if use_bias and bias is None:
-            raise ValueError("b_p > 0 needs the velocity-product terms (bias)")
+            raise ValueError("b_p > 0 or cop_box > 0 needs the velocity-product terms (bias)")
         m = self.mass
         n = self.n
         lo, hi = support
@@ -235,7 +240,8 @@ class MomentumController:
             dx = c[0] - 0.5 * (lo + hi)
             a_p = (dx * A_L[1] + A_H - c[1] * A_L[0]) / m
             r_p = (dx * (b_L[1] + m * GRAVITY) + b_H - c[1] * b_L[0]) / m
-            H += prm.b_p * np.outer(a_p, a_p)
+            if prm.b_p > 0.0:
+                H += prm.b_p * np.outer(a_p, a_p)
         g = prm.b_l * Al.T @ (ldot / m) + prm.b_h * ah * (hdot / m)
         g[hq] += prm.b_t * w2 * qdd_des
         if use_bias:
@@ -247,8 +253,42 @@ class MomentumController:
         K[n:, :n] = Js
         K[n:, n:] = -CONSTRAINT_REGULARISATION * np.eye(k)
         rhs = np.concatenate([g, rhs_c])
-        self.qdd = np.linalg.solve(K, rhs)[:n]
+        x = np.linalg.solve(K, rhs)
+        if prm.cop_box > 0.0:
+            x = self._keep_cop_inside(K, rhs, x, n, a_p, r_p, A_L[1] / m,
+                                      (b_L[1] + m * GRAVITY) / m,
+                                      (lo + prm.cop_box - 0.5 * (lo + hi),
+                                       hi - prm.cop_box - 0.5 * (lo + hi)))
+        self.qdd = x[:n]
         return self.qdd
+
+    @staticmethod
+    def _keep_cop_inside(K: np.ndarray, rhs: np.ndarray, x: np.ndarray, n: int,
+                         a_p: np.ndarray, r_p: float, a_f: np.ndarray, r_f: float,
+                         box: tuple[float, float]) -> np.ndarray:
+        """Active-set step for u_lo <= p - s <= u_hi, where (p - s) F_y / m = a_p qdd + r_p and
+        F_y / m = a_f qdd + r_f: both sides are linear in qdd. At most one side can be active
+        while F_y > 0, and a convex QP whose unconstrained minimiser violates one linear
+        inequality has its constrained minimiser on that inequality's boundary, so one
+        equality-constrained re-solve on the violated side is exact."""
+        qdd = x[:n]
+        moment = a_p @ qdd + r_p
+        normal = a_f @ qdd + r_f
+        if normal <= 0.0:  # no normal force planned: the wrench check hands over to the fall
+            return x
+        for bound in box:
+            if (bound == box[1] and moment > bound * normal) or (
+                    bound == box[0] and moment < bound * normal):
+                row = a_p - bound * a_f  # row qdd = bound r_f - r_p
+                k = K.shape[0]
+                K2 = np.zeros((k + 1, k + 1))
+                K2[:k, :k] = K
+                K2[:n, k] = row
+                K2[k, :n] = row
+                rhs2 = np.append(rhs, bound * r_f - r_p)
+                x2 = np.linalg.solve(K2, rhs2)
+                return x2[:k]
+        return x
 
 
 class FallController:

@@ -27,7 +27,7 @@ HINGE_NAMES: tuple[str, ...] = (
 
 #: Names accepted in controller overrides and gain schedules (see sim.controller.ControllerParams).
 GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l", "b_h", "b_t",
-                               "b_p")
+                               "b_p", "cop_box")
 
 MAX_CLIP_SECONDS = 20.0
 MAX_FORCE_N = 5000.0

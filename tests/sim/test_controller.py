@@ -9,6 +9,7 @@ from sim.character import ROOT_DOF
 from sim.clip import Simulator
 from sim.controller import ControllerParams, GainScheduler, ease
 from sim.dynamics import GRAVITY, momentum_bias, step_model
+from sim.errors import SpecError
 from sim.spec import parse_spec
 
 
@@ -74,3 +75,79 @@ def test_cop_objective_brings_the_planned_cop_to_the_support_centre():
         assert strong < on < off
     finally:
         sim.close()
+
+
+def _bend_state_model(sim: Simulator, qd_scale: float = 1.0):
+    a = sim.arrays
+    q, qd = _moving_state(sim)
+    qd = qd * qd_scale
+    model = step_model(q, qd, *a.args(), a.feet, a.sole_local, a.heel_local, a.toe_local,
+                       a.point_body, a.point_local, a.point_radius)
+    bias = momentum_bias(q, qd, a.parent, a.a_par, a.a_chi, a.mass, a.feet, a.sole_local)
+    return q, qd, model, bias
+
+
+def _bend_sim() -> Simulator:
+    return Simulator(parse_spec({"name": "b", "task": "pose_change",
+                                 "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
+                                 "pose_change": {"target": {"waist": -90}}}))
+
+
+def _plan(sim: Simulator, prm: ControllerParams, q, qd, model, bias, t: float = 0.3):
+    """qdd* for `prm` at the state at time t, and the CoP it implies with the velocity terms."""
+    (M, h, c, cd, A_L, A_H, Js, pts, sole_x, lo, hi, _cl) = model
+    m = sim.character.total_mass
+    sim.controller.schedule = GainScheduler(prm, [])
+    qdd = sim.controller.solve(t, q, qd, c, cd, A_L, A_H, Js, (lo, hi),
+                               (0.5 * (lo + hi), 0.0), (0.0, 0.0), lambda: bias).copy()
+    f = A_L @ qdd + bias[0] + np.array([0.0, m * GRAVITY])
+    hdot = A_H @ qdd + bias[1]
+    return qdd, c[0] + (hdot - c[1] * f[0]) / f[1], (lo, hi)
+
+
+def test_cop_box_keeps_the_planned_cop_inside_the_support():
+    """Mid fast bend the plain QP plans a CoP far outside the foot (the trunk's reaction,
+    docs/physics.md); with cop_box the plan's CoP, velocity terms included, lies on the box's
+    edge, the feet stay planted to first order, and a wider margin moves it further in."""
+    sim = _bend_sim()
+    try:
+        q, qd, model, bias = _bend_state_model(sim)
+        Js = model[6]
+        _, free, (lo, hi) = _plan(sim, ControllerParams(), q, qd, model, bias)
+        assert not lo <= free <= hi, (lo, free, hi)
+        edges = []
+        for box in (0.02, 0.05):
+            qdd, cop, _ = _plan(sim, ControllerParams(cop_box=box), q, qd, model, bias)
+            np.testing.assert_allclose(Js @ qdd, -bias[2], atol=1e-4)
+            assert lo + box - 1e-6 <= cop <= hi - box + 1e-6
+            edge = lo + box if free < lo else hi - box
+            assert cop == pytest.approx(edge, abs=1e-6)  # active: on the bound, not beyond
+            edges.append(cop)
+        print(f"planned CoP: free {free:.3f} m, box 0.02: {edges[0]:.3f}, 0.05: {edges[1]:.3f}"
+              f" (support {lo:.3f}..{hi:.3f})")
+    finally:
+        sim.close()
+
+
+def test_cop_box_is_inactive_while_the_plan_is_inside():
+    """Standing still before the bend (no velocity terms), the plain plan's CoP is near the
+    support centre: the box changes nothing, so it does not take the CM's feedback away as
+    the CoP objective does."""
+    sim = _bend_sim()
+    try:
+        q, qd, model, bias = _bend_state_model(sim, qd_scale=0.0)
+        plain, cop, (lo, hi) = _plan(sim, ControllerParams(), q, qd, model, bias, t=0.05)
+        boxed, _, _ = _plan(sim, ControllerParams(cop_box=0.05), q, qd, model, bias, t=0.05)
+        assert lo + 0.05 < cop < hi - 0.05
+        np.testing.assert_allclose(boxed, plain, rtol=0, atol=1e-12)
+    finally:
+        sim.close()
+
+
+def test_cop_box_too_wide_is_a_spec_error():
+    spec = parse_spec({"name": "b", "task": "pose_change",
+                       "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
+                       "pose_change": {"target": {"waist": -90}},
+                       "schedule": [{"set": {"cop_box": 0.2}}]})
+    with pytest.raises(SpecError, match=r"schedule\.0\.set\.cop_box: must be below half"):
+        Simulator(spec)
