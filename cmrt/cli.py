@@ -6,11 +6,15 @@ Domain errors become one clear message on stderr and exit status 2; nothing is w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import signal
 import sys
+import threading
 import time
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -228,6 +232,25 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@contextlib.contextmanager
+def _terminate_like_interrupt() -> Iterator[None]:
+    """While a command runs, SIGTERM (`kill`, `docker stop`) unwinds like Ctrl-C, so `finally`
+    blocks close the process pool and the store instead of leaving them to the OS. Servers
+    that install their own handler (uvicorn, Celery) replace this one while they run."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     # pycma warns on import when matplotlib is absent; plotting is not part of this tool.
     warnings.filterwarnings("ignore", message="Could not import matplotlib")
@@ -236,7 +259,8 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with _terminate_like_interrupt():
+            return int(args.func(args) or 0)
     except (SimError, OptimError) as err:
         return _die(str(err))
     except FileNotFoundError as err:

@@ -12,6 +12,9 @@ Contracts:
   * `PoolExecutor` raises `EvaluationError` (never hangs) when a worker process dies
     (BrokenProcessPool) or a batch exceeds its timeout; the broken pool is torn down (its
     processes killed) and a fresh one is started by the next `map`.
+  * `PoolExecutor`'s worker processes never outlive the process that made the pool: each
+    watches its parent and exits within PARENT_WATCH_S once the parent is gone (killed with
+    SIGKILL, say, where no clean-up runs), instead of waiting on its queue for ever.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import concurrent.futures as cf
 import contextlib
 import multiprocessing
 import os
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -40,6 +44,8 @@ DEFAULT_BATCH_TIMEOUT_S: float | None = 1800.0
 STARTUP_TIMEOUT_S = 120.0
 #: Start method of pool workers: "spawn" (no forked threads or ODE state; works everywhere).
 DEFAULT_START_METHOD = "spawn"
+#: How often a pool worker checks that the process that made the pool is still alive, seconds.
+PARENT_WATCH_S = 0.5
 
 
 Objective = Callable[[np.ndarray], "EvalOutcome | float"]
@@ -64,6 +70,20 @@ def evaluate_one(fn: Objective, params: np.ndarray) -> EvalOutcome:
 
 def _ping() -> int:
     return os.getpid()
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """Pool-worker initializer: a daemon thread ends this process once its parent is gone.
+
+    Without it a worker whose parent was killed waits on the call queue for ever (every
+    worker holds the queue's write end too, so no end-of-file ever comes)."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_WATCH_S)
+        os._exit(1)  # no clean-up to run: the parent that wanted the results is gone
+
+    threading.Thread(target=watch, name="cmrt-parent-watch", daemon=True).start()
 
 
 class Executor(ABC):
@@ -132,7 +152,9 @@ class PoolExecutor(Executor):
         if self._closed:
             raise EvaluationError("PoolExecutor is closed")
         if self._pool is None:
-            self._pool = cf.ProcessPoolExecutor(max_workers=self._workers, mp_context=self._ctx)
+            self._pool = cf.ProcessPoolExecutor(max_workers=self._workers, mp_context=self._ctx,
+                                                initializer=_exit_with_parent,
+                                                initargs=(os.getpid(),))
             self._warm_up()
         return self._pool
 
@@ -222,6 +244,7 @@ def make_executor(workers: int | None = 1, **kwargs: Any) -> Executor:
 __all__ = [
     "DEFAULT_BATCH_TIMEOUT_S",
     "FAILED_OBJECTIVE",
+    "PARENT_WATCH_S",
     "STARTUP_TIMEOUT_S",
     "EvalOutcome",
     "Executor",

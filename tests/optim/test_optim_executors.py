@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from optim.cmaes import FAILED_OBJECTIVE, CmaOptimizer, StopRules
 from optim.errors import EvaluationError
-from optim.executors import EvalOutcome, PoolExecutor, SerialExecutor, make_executor
+from optim.executors import (
+    PARENT_WATCH_S,
+    EvalOutcome,
+    PoolExecutor,
+    SerialExecutor,
+    make_executor,
+)
 from optim.synthetic import KillWorker, RaiseAbove, Sleep, Sphere
 
 
@@ -90,3 +99,42 @@ def test_make_executor():
     ex.close()
     with pytest.raises(EvaluationError, match="closed"):
         ex.map(Sphere(), [np.zeros(1)])
+
+
+def _gone(pid: int) -> bool:
+    """True once `pid` has exited (a zombie waiting for its reaper counts as exited)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return any(line.startswith("State:") and "Z" in line.split()[1] for line in f)
+    except FileNotFoundError:
+        return True
+
+
+POOL_PARENT = """
+import os, sys, time
+import numpy as np
+from optim.executors import PoolExecutor
+from optim.synthetic import Sphere
+pool = PoolExecutor(2)
+pool.map(Sphere(), [np.zeros(2), np.ones(2)])
+print(" ".join(str(p) for p in pool._pool._processes), flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_pool_workers_exit_when_their_parent_is_killed():
+    """SIGKILL runs no clean-up in the parent: its workers notice and exit by themselves
+    (before, they waited on the call queue for ever, 200 MB each)."""
+    proc = subprocess.Popen([sys.executable, "-c", POOL_PARENT], stdout=subprocess.PIPE,
+                            text=True, cwd=Path(__file__).resolve().parents[2])
+    try:
+        workers = [int(p) for p in proc.stdout.readline().split()]
+        assert len(workers) == 2 and not any(_gone(p) for p in workers)
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    deadline = time.monotonic() + 10 * PARENT_WATCH_S + 5.0
+    while not all(_gone(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert all(_gone(p) for p in workers), workers
