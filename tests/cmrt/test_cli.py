@@ -121,3 +121,41 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
         d.pop("wall_seconds")
     assert a == b
     assert a["evaluations"] == 150
+
+
+def test_sigterm_stops_optimize_cleanly_and_leaves_no_workers(tmp_path):
+    """`kill` (SIGTERM) of `cmrt optimize` mid-run: exit status 130 with the interrupted
+    message, the checkpoint kept for --resume, no result file, and no pool process left."""
+    spec = tmp_path / "bend.yaml"
+    spec.write_text(yaml.safe_dump(dict(BEND, optimize={"max_evaluations": 400})))
+    out = tmp_path / "term.json"
+    ckpt = out.with_suffix(".ckpt")
+    proc = subprocess.Popen(_optimize_cmd(spec, out), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert proc.poll() is None, "finished before its first checkpoint"
+        children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+                                  text=True).stdout.split()
+        assert len(children) >= 2  # the pool's workers (and multiprocessing's tracker)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=30)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err
+    assert ckpt.exists() and not out.exists()
+
+    def left() -> list[str]:  # multiprocessing's resource tracker ends just after its parent
+        ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-g", str(proc.pid)],
+                            capture_output=True, text=True).stdout.splitlines()
+        return [ln for ln in ps if ln.split()[1][0] != "Z"]
+
+    deadline = time.monotonic() + 5.0
+    while left() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert left() == [], "processes of the stopped run still alive"
