@@ -29,7 +29,10 @@ decreasing (down) order, the first from the flat spline, each next one warm-star
 previous T's result (files contup_*.json / contdown_*.json), so that neighbours tend to sit in
 the same basin of the objective (the bend's objective has more than one, see
 docs/benchmarks.md). The reference "optimised at T" is then the better of the flat-start and
-the continued run at T, so warm starting can only make the comparison harder.
+the continued run at T, so warm starting can only make the comparison harder. --warm-sigma S
+gives the warm-started runs a smaller initial step (files contup_sS_*.json): each member is then
+a local refinement of the previous one, so the family stays on one branch of optima, which is
+what linear interpolation between members assumes.
 Prints markdown tables (for docs/benchmarks.md); --json prints the raw numbers instead.
 """
 
@@ -61,7 +64,8 @@ ACTIVE_SECONDS = 1.6  # s, task + decay: the clip stays preparation + 1.6 s for 
 CONVERGED_WITHIN = 0.01  # "converged" = best within 1 % of the run's final best
 
 
-def member_spec(duration: float, max_evaluations: int, template: Path = TEMPLATE) -> TaskSpec:
+def member_spec(duration: float, max_evaluations: int, template: Path = TEMPLATE,
+                sigma0: float | None = None) -> TaskSpec:
     data = yaml.safe_load(template.read_text())
     family = data.get("family") or "bend"
     data["name"] = f"{family}_T{duration:g}"
@@ -72,6 +76,8 @@ def member_spec(duration: float, max_evaluations: int, template: Path = TEMPLATE
         "decay": round(ACTIVE_SECONDS - duration, 6),
     }
     data["optimize"] = {"max_evaluations": max_evaluations}  # no threshold: run to convergence
+    if sigma0 is not None:
+        data["optimize"]["sigma0"] = sigma0
     return parse_spec(data, f"bend family T = {duration:g}")
 
 
@@ -112,6 +118,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-evaluations", type=int, default=1500)
     p.add_argument("--continuation", choices=["up", "down"],
                    help="warm-start each T from the previous one (see module docstring)")
+    p.add_argument("--warm-sigma", type=float, default=None, metavar="S",
+                   help="with --continuation: CMA-ES sigma0 of the warm-started members "
+                        "(default: the spec's, 0.2); a small S refines the previous member "
+                        "locally, so the family follows one branch of optima")
     p.add_argument("--template", type=Path, default=TEMPLATE,
                    help="the spec every member copies but for its timing (default: the fast "
                         "bend; its schedule windows without start/end follow each member's task)")
@@ -121,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
     report: dict = {"members": [], "interpolation": [], "pca": []}
     prefix = f"cont{args.continuation}_" if args.continuation else ""
+    if args.continuation and args.warm_sigma is not None:
+        prefix += f"s{args.warm_sigma:g}_"
 
     def member_row(r: OptimizationResult, T: float, start: str) -> dict:
         return {
@@ -142,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.continuation:
             full, prev, prev_T = {}, None, 0.0
             for T in sorted(members, reverse=args.continuation == "down"):
-                spec = member_spec(T, args.max_evaluations, args.template)
+                spec = member_spec(T, args.max_evaluations, args.template, args.warm_sigma)
                 if prev is None:  # the first member starts from the flat spline: that run
                     full[T] = flat_start[T]
                 else:
