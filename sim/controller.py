@@ -276,19 +276,19 @@ class MomentumController:
         normal = a_f @ qdd + r_f
         if normal <= 0.0:  # no normal force planned: the wrench check hands over to the fall
             return x
-        for bound in box:
-            if (bound == box[1] and moment > bound * normal) or (
-                    bound == box[0] and moment < bound * normal):
-                row = a_p - bound * a_f  # row qdd = bound r_f - r_p
-                k = K.shape[0]
-                K2 = np.zeros((k + 1, k + 1))
-                K2[:k, :k] = K
-                K2[:n, k] = row
-                K2[k, :n] = row
-                rhs2 = np.append(rhs, bound * r_f - r_p)
-                x2 = np.linalg.solve(K2, rhs2)
-                return x2[:k]
-        return x
+        if moment > box[1] * normal:
+            bound = box[1]
+        elif moment < box[0] * normal:
+            bound = box[0]
+        else:
+            return x  # the plan's CoP is inside: the constraint is inactive
+        row = a_p - bound * a_f  # moment = bound * normal  <=>  row qdd = bound r_f - r_p
+        k = K.shape[0]
+        K2 = np.zeros((k + 1, k + 1))
+        K2[:k, :k] = K
+        K2[:n, k] = row
+        K2[k, :n] = row
+        return np.linalg.solve(K2, np.append(rhs, bound * r_f - r_p))[:k]
 
 
 class FallController:
