@@ -139,13 +139,14 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
     `measure(batch) -> (eval/s, repeated attempts, busy)`, one new generation per call."""
     from cmrt.settings import Settings
     from store import open_repository
+    from worker import faults
     from worker.celery_app import make_celery
     from worker.config import WorkerConfig
     from worker.executors import CeleryExecutor
 
     env = dict(os.environ, CMRT_DATABASE_URL=scratch.db_url, CMRT_BROKER_URL=scratch.broker,
                PYTHONUNBUFFERED="1")
-    for k in ("CMRT_FAULT_CRASH_ON", "CMRT_FAULT_DELAY_ON"):
+    for k in faults.ENV_VARS:
         env.pop(k, None)
     repo = open_repository(scratch.db_url)
     settings = Settings(database_url=scratch.db_url, broker_url=scratch.broker)

@@ -147,7 +147,8 @@ class Simulator:
         self.spec = spec
         ch = load_character(spec.character.model, spec.character.height, spec.character.mass)
         self.character = ch
-        _check_cop_box(spec, float(ch.toe0[:, 0].max() - ch.heel0[:, 0].min()))
+        self.support_length = float(ch.toe0[:, 0].max() - ch.heel0[:, 0].min())
+        _check_cop_box(spec, self.support_length)
         self.arrays = ModelArrays.from_character(ch)
         self.world = World(ch, self.arrays)
         self.q0 = standing_state(ch, self.arrays)
@@ -171,7 +172,6 @@ class Simulator:
         self.fall_controller = FallController(ch, DT)
         self.steps = int(round(spec.clip.length / DT))
         self.qp_every = max(1, int(round(1.0 / (QP_RATE * DT))))
-        self.support_length = float(ch.toe0[:, 0].max() - ch.heel0[:, 0].min())
         self.push = None
         if spec.push is not None:
             start, dur = spec.push_window()

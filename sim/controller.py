@@ -210,9 +210,9 @@ class MomentumController:
         """New qdd* from the state; support = (back edge x, front edge x), c_ref = (x, dy).
 
         `bias` returns (b_L, b_H, b_S) of `sim.dynamics.momentum_bias` for this state; it is
-        called only when the scheduled b_p > 0 (and must then be given): the QP then predicts
-        Ldot = A_L qdd + b_L, Hdot = A_H qdd + b_H, keeps the feet planted with
-        J_s qdd = -b_S, and adds the CoP objective."""
+        called only when the scheduled b_p or cop_box is > 0 (and must then be given): the QP
+        then predicts Ldot = A_L qdd + b_L, Hdot = A_H qdd + b_H, keeps the feet planted with
+        J_s qdd = -b_S, and adds the CoP objective (b_p) and the CoP constraint (cop_box)."""
         prm = self.schedule(t)
         use_bias = prm.b_p > 0.0 or prm.cop_box > 0.0
         if use_bias and bias is None:
@@ -220,6 +220,7 @@ class MomentumController:
         m = self.mass
         n = self.n
         lo, hi = support
+        centre = 0.5 * (lo + hi)
         ldot, hdot = self.desired_rates(prm, c, cd, support, c_ref, cd_ref)
         q_r, qd_r, qdd_r = self.trajectory(t)
         hq = slice(ROOT_DOF, n)
@@ -237,7 +238,7 @@ class MomentumController:
             hdot = hdot - b_H
             rhs_c = -b_S
             # CoP objective: (p - s) F_y = (c_x - s) F_y + Hdot - c_y F_x, linear in qdd
-            dx = c[0] - 0.5 * (lo + hi)
+            dx = c[0] - centre
             a_p = (dx * A_L[1] + A_H - c[1] * A_L[0]) / m
             r_p = (dx * (b_L[1] + m * GRAVITY) + b_H - c[1] * b_L[0]) / m
             if prm.b_p > 0.0:
@@ -257,8 +258,7 @@ class MomentumController:
         if prm.cop_box > 0.0:
             x = self._keep_cop_inside(K, rhs, x, n, a_p, r_p, A_L[1] / m,
                                       (b_L[1] + m * GRAVITY) / m,
-                                      (lo + prm.cop_box - 0.5 * (lo + hi),
-                                       hi - prm.cop_box - 0.5 * (lo + hi)))
+                                      (lo + prm.cop_box - centre, hi - prm.cop_box - centre))
         self.qdd = x[:n]
         return self.qdd
 

@@ -24,6 +24,8 @@ import time
 
 ENV = "CMRT_FAULT_CRASH_ON"
 DELAY_ENV = "CMRT_FAULT_DELAY_ON"
+#: Every variable of this module: what a launcher strips from a process that must run clean.
+ENV_VARS = (ENV, DELAY_ENV)
 MAX_DELAY_S = 600.0  # s, a longer sleep would only trip the task's time limit
 
 

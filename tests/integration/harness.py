@@ -30,6 +30,8 @@ from pathlib import Path
 import httpx
 import yaml
 
+from worker import faults
+
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "docker-compose.yml"
 PG_ADMIN_URL = os.environ.get("CMRT_IT_PG", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
@@ -196,7 +198,7 @@ class Topology:
     # -- application services ----------------------------------------------------------------
     def env_for(self, name: str, extra: dict[str, str] | None = None) -> dict[str, str]:
         env = dict(os.environ)
-        for k in ("CMRT_FAULT_CRASH_ON", "CMRT_FAULT_DELAY_ON"):
+        for k in faults.ENV_VARS:
             env.pop(k, None)
         for k, v in (self._service(name).get("environment") or {}).items():
             env[k] = interpolate(v, {**self.overrides})
