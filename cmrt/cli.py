@@ -266,8 +266,9 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as err:
         return _die(f"{err.filename}: no such file")
     except KeyboardInterrupt:
-        print("\ncmrt: interrupted; the checkpoint holds every finished generation",
-              file=sys.stderr)
+        note = ("; the checkpoint holds every finished generation (--resume continues)"
+                if getattr(args, "command", None) == "optimize" else "")
+        print(f"\ncmrt: interrupted{note}", file=sys.stderr)
         return 130
 
 

@@ -147,7 +147,7 @@ def test_sigterm_stops_optimize_cleanly_and_leaves_no_workers(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(timeout=30)
     assert proc.returncode == 130, err
-    assert "interrupted" in err
+    assert "interrupted" in err and "--resume" in err
     assert ckpt.exists() and not out.exists()
 
     def left() -> list[str]:  # multiprocessing's resource tracker ends just after its parent
@@ -159,3 +159,15 @@ def test_sigterm_stops_optimize_cleanly_and_leaves_no_workers(tmp_path):
     while left() and time.monotonic() < deadline:
         time.sleep(0.05)
     assert left() == [], "processes of the stopped run still alive"
+
+
+def test_interrupt_of_a_command_without_checkpoint_does_not_promise_one(monkeypatch, capsys):
+    import cmrt.cli
+
+    def interrupted(_args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cmrt.cli, "cmd_simulate", interrupted)
+    assert main(["simulate", "examples/fast_bend.yaml"]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "checkpoint" not in err
