@@ -15,7 +15,12 @@ second, the ratio Celery / bare pool (target: >= 0.90) and Celery's overhead per
 worker-milliseconds (workers x (1/celery rate - 1/pool rate)), and each side's "busy": the
 simulations' own CPU seconds (as each evaluation measured them) over workers x wall seconds,
 so that what is lost to the machinery (idle gaps between tasks, CPU taken by the broker, the
-database and the Celery parent process) shows apart from slower simulations. The driver
+database and the Celery parent process) shows apart from slower simulations. It also
+accounts, from /proc, the CPU that is not simulation: per candidate, the pool processes' own
+CPU besides the simulations (Celery: the store calls and Celery's task wrapper), the Celery
+parent process, redis-server, the scratch database's PostgreSQL backends, and this process (the
+driver; for the bare pool, the pool's parent). On a machine with as many cores as workers that
+CPU is taken from the simulations. The driver
 waits with its production settings (CMRT_POLL_INTERVAL, default 0.2 s, shorter near a
 generation's end).
 `--store N` also times the worker's store path alone: `worker.evaluation.run_candidate` with a
@@ -58,6 +63,44 @@ def _port() -> int:
         return s.getsockname()[1]
 
 
+_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 0.01
+
+
+def _cpu(pids) -> float:
+    """CPU seconds (user + system) used so far by these processes (Linux /proc; 0 elsewhere).
+    A process that has exited counts 0."""
+    total = 0.0
+    for pid in pids:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        total += (int(fields[11]) + int(fields[12])) * _TICK_S  # utime, stime
+    return total
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
+    except OSError:
+        return []
+    return [int(x) for x in text.split()]
+
+
+class _CpuAccount:
+    """CPU seconds of named groups of processes over one measurement."""
+
+    def __init__(self, groups: dict[str, list[int]]) -> None:
+        self.groups = groups
+        self.t0 = {k: _cpu(v) for k, v in groups.items()}
+        self.p0 = time.process_time()
+
+    def stop(self) -> dict[str, float]:
+        out = {k: _cpu(v) - self.t0[k] for k, v in self.groups.items()}
+        out["driver"] = time.process_time() - self.p0  # this process: the driver or pool parent
+        return out
+
+
 def _spec(clip: float) -> dict:
     prep = round(clip * 0.4, 3)
     dur = round(clip * 0.4, 3)
@@ -80,8 +123,9 @@ def _batch(spec, n: int, seed: int) -> list[np.ndarray]:
 
 @contextlib.contextmanager
 def bare_pool(spec, warm, workers: int):
-    """A warmed-up bare pool; yields `measure(batch) -> (eval/s, busy)`, busy being the
-    simulations' own CPU seconds over workers x wall seconds."""
+    """A warmed-up bare pool; yields `measure(batch) -> (eval/s, busy, cpu)`, busy being the
+    simulations' own CPU seconds over workers x wall seconds, cpu the CPU seconds of the rest
+    (pool processes besides simulating, this process)."""
     from optim.executors import PoolExecutor
     from optim.objective import SimObjective
 
@@ -89,12 +133,18 @@ def bare_pool(spec, warm, workers: int):
     with PoolExecutor(workers) as pool:
         pool.map(fn, warm)
 
-        def measure(batch) -> tuple[float, float]:
+        def measure(batch) -> tuple[float, float, dict[str, float]]:
+            procs = list(pool._pool._processes)  # private, but the only handle on the pids
+            acct = _CpuAccount({"children": procs})
             t0 = time.perf_counter()
             outs = pool.map(fn, batch)
             dt = time.perf_counter() - t0
+            cpu = acct.stop()
             assert all(o.error is None for o in outs)
-            return len(batch) / dt, sum(o.cpu_seconds for o in outs) / (workers * dt)
+            sim = sum(o.cpu_seconds for o in outs)
+            cpu["children"] -= sim  # what the pool processes spent besides simulating
+            cpu["wall"] = dt
+            return len(batch) / dt, sim / (workers * dt), cpu
 
         yield measure
 
@@ -136,7 +186,11 @@ class _Scratch:
 @contextlib.contextmanager
 def celery(spec, warm, workers: int, scratch: _Scratch):
     """A warmed-up Celery worker (the compose command) and the driver's executor; yields
-    `measure(batch) -> (eval/s, repeated attempts, busy)`, one new generation per call."""
+    `measure(batch) -> (eval/s, repeated attempts, busy, cpu)`, one new generation per call;
+    cpu: CPU seconds of the worker's pool processes besides simulating, of its parent, of Redis,
+    of the scratch database's PostgreSQL backends and of this process (the driver)."""
+    import sqlalchemy as sa
+
     from cmrt.settings import Settings
     from store import open_repository
     from worker import faults
@@ -172,16 +226,27 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
         ex.evaluate(repo, job.id, job.spec, 0, len(warm), check)
         generation = 0
 
-        def measure(batch) -> tuple[float, int, float]:
+        def backends() -> list[int]:
+            with repo.engine.connect() as c:
+                return [int(r[0]) for r in c.execute(sa.text(
+                    "SELECT pid FROM pg_stat_activity WHERE datname = current_database()"))]
+
+        def measure(batch) -> tuple[float, int, float, dict[str, float]]:
             nonlocal generation
             generation += 1
             repo.put_pending_evaluations(job.id, generation, [list(map(float, x)) for x in batch])
+            acct = _CpuAccount({"children": _children(proc.pid), "parent": [proc.pid],
+                                "redis": [scratch.redis.pid], "postgres": backends()})
             t0 = time.perf_counter()
             rows = ex.evaluate(repo, job.id, job.spec, generation, len(batch), check)
             dt = time.perf_counter() - t0
+            cpu = acct.stop()
             assert all(r.status == "done" for r in rows)
-            busy = sum(r.cpu_seconds or 0.0 for r in rows) / (workers * dt)
-            return len(batch) / dt, sum(r.attempts - 1 for r in rows), busy
+            sim = sum(r.cpu_seconds or 0.0 for r in rows)
+            cpu["children"] -= sim
+            cpu["wall"] = dt
+            busy = sim / (workers * dt)
+            return len(batch) / dt, sum(r.attempts - 1 for r in rows), busy, cpu
 
         yield measure
     finally:
@@ -222,6 +287,16 @@ def store_path(spec, n: int, scratch: _Scratch) -> dict:
         repo.engine.dispose()
 
 
+def _add(total: dict[str, float], part: dict[str, float]) -> None:
+    for k, v in part.items():
+        total[k] = total.get(k, 0.0) + v
+
+
+def _per_candidate(total: dict[str, float], candidates: int) -> dict[str, float]:
+    """ms per candidate from seconds summed over measurements of `candidates` in all."""
+    return {k: 1e3 * v / candidates for k, v in total.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--candidates", type=int, default=32)
@@ -243,16 +318,21 @@ def main(argv: list[str] | None = None) -> int:
         for n in args.workers:
             warm = _batch(spec, 2 * n, 100 + n)
             pool_rates, cel_rates, repeated, pool_busy, cel_busy = [], [], 0, [], []
+            pool_cpu: dict[str, float] = {}
+            cel_cpu: dict[str, float] = {}
             with bare_pool(spec, warm, n) as pool, celery(spec, warm, n, scratch) as cel:
                 for _ in range(args.repeat):  # alternate, so both see the same machine load
-                    rate, busy = pool(batch)
+                    rate, busy, cpu = pool(batch)
                     pool_rates.append(rate)
                     pool_busy.append(busy)
-                    rate, rep, busy = cel(batch)
+                    _add(pool_cpu, cpu)
+                    rate, rep, busy, cpu = cel(batch)
                     cel_rates.append(rate)
                     cel_busy.append(busy)
+                    _add(cel_cpu, cpu)
                     repeated += rep
             ratios = [c / p for c, p in zip(cel_rates, pool_rates, strict=True)]
+            measured = len(batch) * args.repeat
             pool_rate = statistics.median(pool_rates)
             cel_rate = statistics.median(cel_rates)
             rows.append({"workers": n, "pool_eval_per_s": pool_rate,
@@ -261,7 +341,9 @@ def main(argv: list[str] | None = None) -> int:
                          "overhead_ms": 1e3 * n * (1 / cel_rate - 1 / pool_rate),
                          "repeated": repeated,
                          "pool_busy": statistics.median(pool_busy),
-                         "celery_busy": statistics.median(cel_busy)})
+                         "celery_busy": statistics.median(cel_busy),
+                         "pool_cpu_ms_per_candidate": _per_candidate(pool_cpu, measured),
+                         "celery_cpu_ms_per_candidate": _per_candidate(cel_cpu, measured)})
         store = store_path(spec, args.store, scratch) if args.store > 0 else None
     finally:
         scratch.close()
@@ -278,6 +360,13 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['celery_busy']:>11.1%}"
               + (f"   ratios {' '.join(f'{x:.0%}' for x in r['ratios'])}" if args.repeat > 1
                  else ""))
+    print("CPU ms per candidate besides the simulation itself (all measurements; 'wall' is "
+          "wall ms per candidate):")
+    for r in rows:
+        for side in ("pool", "celery"):
+            parts = r[f"{side}_cpu_ms_per_candidate"]
+            print(f"  {r['workers']} worker(s), {side:>6}: " + ", ".join(
+                f"{k} {v:.2f}" for k, v in parts.items()))
     if store:
         print(f"store path (run_candidate, null objective, PostgreSQL): median "
               f"{store['store_ms_median']:.2f} ms, mean {store['store_ms_mean']:.2f} ms, "

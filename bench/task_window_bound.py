@@ -1,7 +1,7 @@
 """A lower bound on what any CMRT can do for a clip: CMA-ES on the task window's error alone.
 
     .venv/bin/python bench/task_window_bound.py SPEC [--knots N] [--seed S] [--workers 2]
-        [--max-evaluations 1000] [--sigma0 0.2] [--out RESULT.json] [--json]
+        [--max-evaluations 1000] [--sigma0 0.2] [--max-displacement M] [--out RESULT.json] [--json]
 
 The objective is sqrt(S), S = sum over the clip's steps of e^2 (e = CP - support centre,
 metres), and S splits into the task window's part S_task and the rest. For every CMRT,
@@ -67,6 +67,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         "max_evaluations": args.max_evaluations, "sigma0": args.sigma0}
     if args.knots:
         data["cmrt"] = {**data.get("cmrt", {}), "knots": args.knots}
+    if args.max_displacement:
+        data["cmrt"] = {**data.get("cmrt", {}), "max_displacement": args.max_displacement}
     spec = parse_spec(data, "task window bound spec")
     full = SimObjective(spec)
     flat_ev = full.evaluation(None, traces=True)
@@ -79,6 +81,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     half = 0.5 * flat_ev.objective
     return {
         "spec": args.spec, "knots": spec.cmrt.knots, "seed": args.seed,
+        "max_displacement": spec.cmrt.max_displacement, "sigma0": spec.optimize.sigma0,
         "evaluations": result.evaluations, "stop_rule": result.stop_rule,
         "flat_objective": flat_ev.objective, "flat_task_sum": task_window_sum(spec, flat_ev),
         "half_flat": half,
@@ -92,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("spec")
     p.add_argument("--knots", type=int, default=None, help="spline knots (default: the spec's)")
+    p.add_argument("--max-displacement", type=float, default=None,
+                   help="the spline's displacement bound in metres (default: the spec's)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--max-evaluations", type=int, default=1000)
@@ -103,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(r, indent=2))
         return 0
-    print(f"{r['spec']}: {r['knots']} knots, seed {r['seed']}, {r['evaluations']} evaluations "
+    print(f"{r['spec']}: {r['knots']} knots, displacement <= {r['max_displacement']:g} m, "
+          f"sigma0 {r['sigma0']:g}, seed {r['seed']}, {r['evaluations']} evaluations "
           f"({r['stop_rule']})")
     print(f"flat spline: objective {r['flat_objective']:.4f}, task-window sum "
           f"{r['flat_task_sum']:.3f} m^2; half the objective {r['half_flat']:.4f}")
