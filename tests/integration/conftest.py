@@ -9,7 +9,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from harness import Topology
+from harness import make_topology
 
 #: Short timeouts so faults resolve in seconds (production defaults: docker-compose.yml).
 OVERRIDES = {
@@ -36,7 +36,7 @@ WORKER_FAULTS = {"CMRT_FAULT_CRASH_ON": "poison:0:1",
 @pytest.fixture(scope="session")
 def topology():
     work = Path(tempfile.mkdtemp(prefix="cmrt-it-"))
-    topo = Topology(work, overrides=dict(OVERRIDES))
+    topo = make_topology(work, dict(OVERRIDES))
     try:
         topo.start_redis()
         topo.create_database()
@@ -65,11 +65,13 @@ def api(topology):
 
 
 @pytest.fixture(autouse=True)
-def _logs_on_failure(request, topology):
+def _logs_on_failure(request):
     yield
+    if "topology" not in request.fixturenames:  # e.g. the harness' own unit tests
+        return
     rep = getattr(request.node, "rep_call", None)
     if rep is not None and rep.failed:
-        print(topology.logs())
+        print(request.getfixturevalue("topology").logs())
 
 
 @pytest.hookimpl(hookwrapper=True)

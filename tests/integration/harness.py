@@ -1,15 +1,26 @@
 """Starts the services that docker-compose.yml names, for the topology tests.
 
-Where a Docker engine answers, `docker compose` runs the file itself (project `cmrt-it`).
-Otherwise each application service's own `command` and `environment` from the compose file run
-as local processes (in their own process group, so `kill -9` takes the whole service like a
-container dying), against:
+`make_topology(workdir, overrides)` picks the mode (CMRT_IT_MODE = compose | local; by default
+compose where a Docker engine answers `docker info`, else local). Both modes offer the same
+interface (`BaseTopology`), which is all the tests use.
+
+compose (`ComposeTopology`): `docker compose` runs the file itself, as a private project
+  (`cmrt-it-<random>`), with a generated override file that adds the tests' settings (short
+  timeouts, fault hooks of the workers) to the api and worker services and publishes the API on
+  a free port. A service replica is a container: `kill9` is `docker kill -s KILL`, a restart is
+  `docker compose up -d --no-recreate`, Redis is wiped by removing its volume, and the database
+  sessions are terminated through `psql` in the postgres container. `stop_all` is
+  `docker compose down -v`. This mode needs an engine, which the development machine has not:
+  its command lines are checked against a fake `docker` in test_harness.py, never run here.
+local (`LocalTopology`): each application service's own `command` and `environment` from the
+  compose file run as local processes (in their own process group, so `kill -9` takes the whole
+  service like a container dying), against:
   - redis:    the compose service's command run locally by `redis-server` on a free port
               (a private instance, so the tests may restart it without touching anyone else's);
   - postgres: the machine's PostgreSQL server (CMRT_IT_PG, default
               postgresql+psycopg://postgres@127.0.0.1:5432/test) with a fresh database per run.
-Host names in the compose URLs (redis, postgres) are rewritten to these local addresses; the
-`python` of the commands is this interpreter. Logs go to the run's temporary folder.
+  Host names in the compose URLs (redis, postgres) are rewritten to these local addresses; the
+  `python` of the commands is this interpreter. Logs go to the run's temporary folder.
 """
 
 from __future__ import annotations
@@ -106,8 +117,7 @@ class Proc:
 
     def busy(self) -> bool:
         """True if the worker's log shows a task received and not finished yet."""
-        lines = [ln for ln in self.tail(20).splitlines() if "Task cmrt." in ln]
-        return bool(lines) and lines[-1].rstrip().endswith("received")
+        return _busy(self.tail(20))
 
     def children(self) -> list[int]:
         """Pids of this service's processes other than the leader (e.g. Celery pool children)."""
@@ -117,8 +127,86 @@ class Proc:
         return [int(p) for p in out.stdout.split() if int(p) != self.popen.pid]
 
 
+class BaseTopology:
+    """What the topology tests use; one implementation per mode (see module docstring).
+
+    Contract:
+      * `procs[name]`: the replicas of service `name` ever started, oldest first, each with
+        `name`, `alive`, `busy()` (a worker whose log shows a task received and not finished),
+        `kill9()` (SIGKILL to the whole replica, like a container killed), `stop()`,
+        `tail(n)` and `log` (a Path holding the replica's log so far);
+      * `start_redis()` / `stop_redis(wipe)`: the broker up (healthy) / killed, with its data
+        gone when `wipe`;
+      * `create_database()` / `drop_database()` / `drop_database_connections()` (terminates
+        every session of the application's database and returns how many);
+      * `warm_up()`: whatever makes the first evaluations not pay a one-off cost;
+      * `start(name, extra)`: one more running replica of an application service (api,
+        worker) with `extra` environment variables; returns it once started (the api: once
+        /health answers);
+      * `wait_workers_ready(count)`, `url(path)` of the API, `logs()`, `stop_all()`.
+    """
+
+    procs: dict
+
+    def start_redis(self) -> None:
+        raise NotImplementedError
+
+    def stop_redis(self, wipe: bool = False) -> None:
+        raise NotImplementedError
+
+    def create_database(self) -> None:
+        raise NotImplementedError
+
+    def drop_database(self) -> None:
+        raise NotImplementedError
+
+    def drop_database_connections(self) -> int:
+        raise NotImplementedError
+
+    def warm_up(self) -> None:
+        raise NotImplementedError
+
+    def start(self, name: str, extra: dict[str, str] | None = None):
+        raise NotImplementedError
+
+    def wait_workers_ready(self, count: int, timeout: float = 60) -> None:
+        raise NotImplementedError
+
+    def url(self, path: str) -> str:
+        raise NotImplementedError
+
+    def logs(self) -> str:
+        raise NotImplementedError
+
+    def stop_all(self) -> None:
+        raise NotImplementedError
+
+    def _wait(self, ok, what: str, timeout: float, proc=None) -> None:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            if ok():
+                return
+            if proc is not None and not proc.alive:
+                raise RuntimeError(f"{what} exited:\n{proc.tail()}")
+            time.sleep(0.2)
+        raise RuntimeError(f"{what} not ready after {timeout} s:\n"
+                           + (proc.tail() if proc else ""))
+
+    def _api_ready(self) -> bool:
+        try:
+            return httpx.get(self.url("/health"), timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+
+def _busy(tail: str) -> bool:
+    """True if a worker log's tail shows a task received and not finished yet."""
+    lines = [ln for ln in tail.splitlines() if "Task cmrt." in ln]
+    return bool(lines) and lines[-1].rstrip().endswith("received")
+
+
 @dataclass
-class Topology:
+class LocalTopology(BaseTopology):
     """The compose topology as local processes (see module docstring)."""
 
     workdir: Path
@@ -259,25 +347,8 @@ class Topology:
             return n >= count
         self._wait(ready, f"{count} workers", timeout)
 
-    def _api_ready(self) -> bool:
-        try:
-            return httpx.get(self.url("/health"), timeout=2).status_code == 200
-        except httpx.HTTPError:
-            return False
-
     def url(self, path: str) -> str:
         return f"http://127.0.0.1:{self.api_port}{path}"
-
-    def _wait(self, ok, what: str, timeout: float, proc: Proc | None = None) -> None:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < timeout:
-            if ok():
-                return
-            if proc is not None and not proc.alive:
-                raise RuntimeError(f"{what} exited:\n{proc.tail()}")
-            time.sleep(0.2)
-        raise RuntimeError(f"{what} not ready after {timeout} s:\n"
-                           + (proc.tail() if proc else ""))
 
     def stop_all(self) -> None:
         for name in ("api", "worker"):
@@ -288,6 +359,170 @@ class Topology:
     def logs(self) -> str:
         return "\n".join(f"--- {p.name} ---\n{p.tail(60)}"
                          for ps in self.procs.values() for p in ps)
+
+
+#: Application services whose environment the override file extends.
+APP_SERVICES = ("api", "worker")
+
+
+class Container:
+    """One replica of a compose service (a container), with `Proc`'s interface."""
+
+    def __init__(self, topo: ComposeTopology, name: str, cid: str) -> None:
+        self.topo = topo
+        self.name = name
+        self.id = cid
+
+    @property
+    def alive(self) -> bool:
+        out = self.topo.docker("inspect", "-f", "{{.State.Running}}", self.id, check=False)
+        return out.strip() == "true"
+
+    def kill9(self) -> None:
+        self.topo.docker("kill", "-s", "KILL", self.id, check=False)
+        deadline = time.monotonic() + 10.0  # `docker kill` returns once the signal is sent
+        while self.alive and time.monotonic() < deadline:
+            time.sleep(0.1)
+
+    def stop(self) -> None:
+        self.topo.docker("stop", self.id, check=False)
+
+    def tail(self, n: int = 40) -> str:
+        return self.topo.docker("logs", "--tail", str(n), self.id, check=False)
+
+    @property
+    def log(self) -> Path:
+        path = self.topo.workdir / f"{self.name}.log"
+        path.write_text(self.topo.docker("logs", self.id, check=False))
+        return path
+
+    def busy(self) -> bool:
+        return _busy(self.tail(20))
+
+    def ready(self) -> bool:
+        """Running, and its Celery worker said "ready" since its last start."""
+        started = self.topo.docker("inspect", "-f", "{{.State.StartedAt}}", self.id,
+                                   check=False).strip()
+        if not started or not self.alive:
+            return False
+        return " ready." in self.topo.docker("logs", "--since", started, self.id, check=False)
+
+
+class ComposeTopology(BaseTopology):
+    """The topology run by `docker compose` itself (see module docstring)."""
+
+    mode = "compose"
+
+    def __init__(self, workdir: Path, overrides: dict[str, str] | None = None,
+                 docker: str = "docker") -> None:
+        self.workdir = Path(workdir)
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.overrides = dict(overrides or {})
+        self.docker_cmd = docker
+        self.project = f"cmrt-it-{uuid.uuid4().hex[:8]}"
+        self.api_port = free_port()
+        self.override_file = self.workdir / "docker-compose.it.yml"
+        self.extra: dict[str, dict[str, str]] = {name: {} for name in APP_SERVICES}
+        self.procs: dict[str, list[Container]] = {}
+        self._write_override()
+
+    # -- docker ------------------------------------------------------------------------------
+    def docker(self, *args: str, check: bool = True, timeout: float = 900) -> str:
+        # the overrides also reach the compose file's own ${VAR} interpolation
+        env = {**os.environ, **self.overrides, "CMRT_API_PORT": str(self.api_port)}
+        r = subprocess.run([self.docker_cmd, *args], cwd=ROOT, env=env, capture_output=True,
+                           text=True, timeout=timeout)
+        if check and r.returncode != 0:
+            raise RuntimeError(f"docker {' '.join(args)} failed ({r.returncode}):\n"
+                               f"{r.stdout}{r.stderr}")
+        return r.stdout
+
+    def compose(self, *args: str, check: bool = True) -> str:
+        return self.docker("compose", "-p", self.project, "-f", str(COMPOSE),
+                           "-f", str(self.override_file), *args, check=check)
+
+    def _write_override(self) -> None:
+        """The tests' settings on top of docker-compose.yml (compose merges `environment`)."""
+        services = {name: {"environment": {**self.overrides, **self.extra[name]}}
+                    for name in APP_SERVICES}
+        self.override_file.write_text(yaml.safe_dump({"services": services}, sort_keys=True))
+
+    def _containers(self, name: str) -> list[Container]:
+        """Every replica of `name`, running or not, keeping the objects already handed out."""
+        known = {c.id: c for c in self.procs.get(name, [])}
+        ids = self.compose("ps", "-a", "-q", name, check=False).split()
+        out = [known.get(cid) or Container(self, f"{name}-{cid[:12]}", cid) for cid in ids]
+        out += [c for cid, c in known.items() if cid not in ids]  # removed: keep for the record
+        self.procs[name] = out
+        return out
+
+    # -- infrastructure ----------------------------------------------------------------------
+    def start_redis(self) -> None:
+        self.compose("up", "-d", "--wait", "redis")
+        self._containers("redis")
+
+    def stop_redis(self, wipe: bool = False) -> None:
+        self.compose("kill", "-s", "KILL", "redis", check=False)
+        if wipe:
+            self.compose("rm", "-f", "redis", check=False)
+            self.docker("volume", "rm", "-f", f"{self.project}_redisdata", check=False)
+
+    def create_database(self) -> None:
+        self.compose("up", "-d", "--wait", "postgres")  # the image creates the database
+
+    def drop_database(self) -> None:
+        pass  # `down -v` in stop_all removes its volume
+
+    def drop_database_connections(self) -> int:
+        out = self.compose(
+            "exec", "-T", "postgres", "psql", "-U", "cmrt", "-d", "cmrt", "-tAc",
+            "SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity "
+            "WHERE datname = 'cmrt' AND pid <> pg_backend_pid()")
+        return int(out.strip().splitlines()[-1])
+
+    def warm_up(self) -> None:
+        self.compose("build", "api")
+
+    # -- application services ----------------------------------------------------------------
+    def start(self, name: str, extra: dict[str, str] | None = None) -> Container:
+        if extra and extra != self.extra[name]:
+            self.extra[name] = dict(extra)
+            self._write_override()
+        before = {c.id for c in self._containers(name) if c.alive}
+        # One more running replica: compose starts a stopped one before creating a new one.
+        # --no-deps: a worker must not bring the api up behind the tests' back (they start it).
+        self.compose("up", "-d", "--no-deps", "--no-recreate", "--no-build", "--scale",
+                     f"{name}={len(before) + 1}", name)
+        fresh = [c for c in self._containers(name) if c.alive and c.id not in before]
+        if not fresh:
+            raise RuntimeError(f"docker compose started no new {name} replica:\n{self.logs()}")
+        if name == "api":
+            self._wait(self._api_ready, "api", 120, fresh[0])
+        return fresh[0]
+
+    def wait_workers_ready(self, count: int, timeout: float = 120) -> None:
+        self._wait(lambda: sum(c.ready() for c in self._containers("worker")) >= count,
+                   f"{count} workers", timeout)
+
+    def url(self, path: str) -> str:
+        return f"http://127.0.0.1:{self.api_port}{path}"
+
+    def logs(self) -> str:
+        return self.compose("logs", "--no-color", "--tail", "60", check=False)
+
+    def stop_all(self) -> None:
+        self.compose("down", "-v", "--remove-orphans", "--timeout", "10", check=False)
+
+
+def make_topology(workdir: Path, overrides: dict[str, str] | None = None) -> BaseTopology:
+    """The topology for this machine: CMRT_IT_MODE (compose | local), by default compose where
+    a Docker engine answers, local otherwise."""
+    mode = os.environ.get("CMRT_IT_MODE") or ("compose" if docker_available() else "local")
+    if mode == "compose":
+        return ComposeTopology(workdir, overrides)
+    if mode == "local":
+        return LocalTopology(workdir, overrides=dict(overrides or {}))
+    raise ValueError(f"CMRT_IT_MODE must be compose or local, got {mode!r}")
 
 
 def _set_opt(argv: list[str], opt: str, value: str) -> list[str]:

@@ -1,0 +1,178 @@
+"""The harness' compose mode against a fake `docker` (no engine on the development machine).
+
+The fake keeps containers in a JSON file and answers the few commands the harness uses, the
+way docker compose does: `up --scale svc=N` starts stopped replicas before creating new ones,
+`kill` stops, `rm` removes, `ps -a -q` lists. These tests check what the harness asks of
+docker (command lines, the override file, the replica bookkeeping); the real engine's side is
+not exercised here.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from harness import ComposeTopology, LocalTopology, docker_available, make_topology
+
+FAKE = r'''
+import json, os, sys
+state_path, log_path = os.environ["FAKE_DOCKER_STATE"], os.environ["FAKE_DOCKER_LOG"]
+args = sys.argv[1:]
+with open(log_path, "a") as f:
+    f.write(json.dumps(args) + "\n")
+try:
+    state = json.load(open(state_path))
+except FileNotFoundError:
+    state = {"next": 0, "containers": {}}
+cs = state["containers"]
+
+def save():
+    json.dump(state, open(state_path, "w"))
+
+def ensure(svc, n):
+    mine = [c for c in cs.values() if c["service"] == svc]
+    running = [c for c in mine if c["running"]]
+    for c in [c for c in mine if not c["running"]][: max(0, n - len(running))]:
+        c["running"] = True
+        running.append(c)
+    while len(running) < n:
+        state["next"] += 1
+        cid = f"{svc}{state['next']:012d}"
+        cs[cid] = {"id": cid, "service": svc, "running": True}
+        running.append(cs[cid])
+
+if args[0] == "info":
+    sys.exit(0)
+if args[0] == "compose":
+    i = 1
+    while args[i] in ("-p", "-f"):
+        i += 2
+    cmd, rest = args[i], args[i + 1:]
+    svc = rest[-1] if rest else None
+    if cmd == "up":
+        scale = [a for a in rest if "=" in a and not a.startswith("-")]
+        ensure(svc, int(scale[0].split("=")[1]) if scale else 1)
+    elif cmd == "ps":
+        print("\n".join(c["id"] for c in cs.values() if c["service"] == svc))
+    elif cmd == "kill":
+        for c in cs.values():
+            if c["service"] == svc:
+                c["running"] = False
+    elif cmd == "rm":
+        for cid in [k for k, c in cs.items() if c["service"] == svc and not c["running"]]:
+            del cs[cid]
+    elif cmd == "exec":
+        print("5")
+    elif cmd == "down":
+        cs.clear()
+elif args[0] == "inspect":
+    c = cs.get(args[-1])
+    if c is None:
+        sys.exit(1)
+    print("2026-12-02T00:00:00Z" if "StartedAt" in args[2] else str(c["running"]).lower())
+elif args[0] == "kill":
+    cs[args[-1]]["running"] = False
+elif args[0] == "logs":
+    print("[INFO/MainProcess] Connected\n[INFO/MainProcess] cmrt@x ready.")
+save()
+'''
+
+
+@pytest.fixture
+def fake_docker(tmp_path, monkeypatch):
+    exe = tmp_path / "bin" / "docker"
+    exe.parent.mkdir()
+    exe.write_text(f"#!{sys.executable}\n{FAKE}")
+    exe.chmod(exe.stat().st_mode | stat.S_IXUSR)
+    log = tmp_path / "docker.log"
+    monkeypatch.setenv("PATH", f"{exe.parent}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("FAKE_DOCKER_STATE", str(tmp_path / "state.json"))
+    monkeypatch.setenv("FAKE_DOCKER_LOG", str(log))
+
+    def calls() -> list[list[str]]:
+        return [json.loads(ln) for ln in log.read_text().splitlines()] if log.exists() else []
+
+    return calls
+
+
+def _compose_calls(calls, verb: str) -> list[list[str]]:
+    out = []
+    for c in calls():
+        if c[0] != "compose":
+            continue
+        i = 1
+        while c[i] in ("-p", "-f"):
+            i += 2
+        if c[i] == verb:
+            out.append(c[i:])
+    return out
+
+
+def test_mode_follows_the_engine_and_the_setting(fake_docker, tmp_path, monkeypatch):
+    assert docker_available()
+    monkeypatch.delenv("CMRT_IT_MODE", raising=False)
+    assert isinstance(make_topology(tmp_path / "a", {}), ComposeTopology)
+    monkeypatch.setenv("CMRT_IT_MODE", "local")
+    assert isinstance(make_topology(tmp_path / "b", {}), LocalTopology)
+    monkeypatch.setenv("CMRT_IT_MODE", "swarm")
+    with pytest.raises(ValueError, match="CMRT_IT_MODE"):
+        make_topology(tmp_path / "c", {})
+
+
+def test_compose_session_as_the_topology_tests_drive_it(fake_docker, tmp_path):
+    topo = ComposeTopology(tmp_path / "run", {"CMRT_LEASE_SECONDS": "3"})
+    topo._api_ready = lambda: True  # no HTTP server behind the fake
+    topo.start_redis()
+    topo.create_database()
+    topo.warm_up()
+    faults = {"CMRT_FAULT_CRASH_ON": "poison:0:1"}
+    w1 = topo.start("worker", faults)
+    w2 = topo.start("worker", faults)
+    api = topo.start("api")
+    topo.wait_workers_ready(2)
+
+    # every compose call names the private project, the compose file and the override file
+    for c in fake_docker():
+        if c[0] == "compose":
+            assert c[1:3] == ["-p", topo.project] and c[3:5] == ["-f", str(Path(
+                "docker-compose.yml").resolve())] and c[5:7] == ["-f", str(topo.override_file)]
+    override = yaml.safe_load(topo.override_file.read_text())["services"]
+    assert override["worker"]["environment"] == {"CMRT_LEASE_SECONDS": "3", **faults}
+    assert override["api"]["environment"] == {"CMRT_LEASE_SECONDS": "3"}
+    ups = _compose_calls(fake_docker, "up")
+    assert ups[0][-1] == "redis" and "--wait" in ups[0]
+    assert ups[1][-1] == "postgres" and "--wait" in ups[1]
+    assert [u[-2:] for u in ups[2:]] == [["worker=1", "worker"], ["worker=2", "worker"],
+                                         ["api=1", "api"]]
+    assert all("--no-deps" in u and "--no-recreate" in u for u in ups[2:])
+    assert _compose_calls(fake_docker, "build") == [["build", "api"]]
+    assert len({w1.id, w2.id}) == 2 and w1.alive and w2.alive and api.alive
+    assert topo.url("/health") == f"http://127.0.0.1:{topo.api_port}/health"
+
+    # a killed worker is brought back (the stopped replica is started again, not a third one)
+    w1.kill9()
+    assert not w1.alive and ["kill", "-s", "KILL", w1.id] in fake_docker()
+    again = topo.start("worker", faults)
+    assert again is w1 and w1.alive
+    assert [c.id for c in topo.procs["worker"]] == [w1.id, w2.id]
+    assert "ready." in w2.log.read_text() and not w2.busy()
+
+    # the api killed and restarted
+    topo.procs["api"][-1].kill9()
+    assert topo.start("api") is api and api.alive
+
+    # redis killed and wiped, then up again; database sessions dropped
+    topo.stop_redis(wipe=True)
+    assert ["volume", "rm", "-f", f"{topo.project}_redisdata"] in fake_docker()
+    topo.start_redis()
+    assert topo.drop_database_connections() == 5
+    psql = _compose_calls(fake_docker, "exec")[-1]
+    assert psql[:4] == ["exec", "-T", "postgres", "psql"] and "pg_terminate_backend" in psql[-1]
+
+    topo.stop_all()
+    assert _compose_calls(fake_docker, "down")[-1][:2] == ["down", "-v"]
