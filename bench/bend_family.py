@@ -16,7 +16,10 @@ minimum, or a cap of `--max-evaluations`), so that objectives are comparable.
    15 %).
 3. PCA (Table 2's protocol): for every T in --leave-out, a basis of k components from the
    other --durations results (with --basis-from all: from every other optimised member,
-   --between included, so that k = 3 components do not span the members trivially), a
+   --between included, so that k = 3 components do not span the members trivially; with
+   --basis-from runs: from every full-space result saved in --out, flat starts and every
+   continuation run so far, several optima per T, as the paper's basis of 11 samples "collected
+   in the test runs"; the reference is then the best of all those runs at T), a
    reduced-space optimisation of T under the same stopping rules, and the objective against
    the full-space one (target: within 5 %) and the speed-up in evaluations. Two speed-ups are
    printed: evaluations until the stopping rule fired (bounded below by the rule's
@@ -103,6 +106,18 @@ def run_or_load(path: Path, spec: TaskSpec, pool: PoolExecutor, seed: int, basis
     return res
 
 
+def stored_runs(out: Path) -> list[tuple[float, OptimizationResult]]:
+    """(T, result) of every full-space optimisation saved in `out`: the flat-start members
+    (full_T*.json) and every continuation (cont*_T*.json), reduced-space runs excluded."""
+    found = []
+    for path in sorted(out.glob("*.json")):
+        if not (path.name.startswith(("full_T", "cont"))) or "reduced" in path.name:
+            continue
+        r = OptimizationResult.load(path)
+        found.append((float(r.spec["clip"]["duration"]), r))
+    return found
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--out", type=Path, default=ROOT / "results" / "bend_family")
@@ -112,9 +127,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--between", type=float, nargs="*", default=[0.5, 0.7])
     p.add_argument("--leave-out", type=float, nargs="*", default=[0.6, 0.8, 1.0])
     p.add_argument("--k", type=int, default=3)
-    p.add_argument("--basis-from", choices=["durations", "all"], default="durations",
-                   help="PCA members: the --durations results, or every optimised member "
-                        "(--durations and --between); the left-out T is never in its basis")
+    p.add_argument("--basis-from", choices=["durations", "all", "runs"], default="durations",
+                   help="PCA members: the --durations results, every optimised member "
+                        "(--durations and --between), or every optimised result in --out "
+                        "(all starts and continuations run so far: several optima per T); the "
+                        "left-out T is never in its basis")
     p.add_argument("--max-evaluations", type=int, default=1500)
     p.add_argument("--continuation", choices=["up", "down"],
                    help="warm-start each T from the previous one (see module docstring)")
@@ -181,15 +198,21 @@ def main(argv: list[str] | None = None) -> int:
                 "excess": out_i.objective / opt - 1.0,
             })
 
+        runs = stored_runs(args.out) if args.basis_from == "runs" else []
         for T in args.leave_out:
-            pool_T = args.durations if args.basis_from == "durations" else members
-            others = [full[d] for d in pool_T if d != T]
+            if args.basis_from == "runs":
+                others = [r for d, r in runs if abs(d - T) > 1e-9]
+                fr = min([reference[T]] + [r for d, r in runs if abs(d - T) <= 1e-9],
+                         key=lambda r: r.objective)
+            else:
+                pool_T = args.durations if args.basis_from == "durations" else members
+                others = [full[d] for d in pool_T if d != T]
+                fr = reference[T]
             basis = build_basis(others, k=args.k)
             spec = member_spec(T, args.max_evaluations, args.template)
-            tag = "" if args.basis_from == "durations" else "all_"
+            tag = {"durations": "", "all": "all_", "runs": "runs_"}[args.basis_from]
             red = run_or_load(args.out / f"{prefix}reduced_k{args.k}_{tag}T{T:g}.json", spec,
                               pool, args.seed, basis=basis, log=log)
-            fr = reference[T]
             report["pca"].append({
                 "T": T, "k": args.k, "members": [m.name for m in others],
                 "variance_explained_k": float(np.sum(basis.variance_explained[: args.k])),
