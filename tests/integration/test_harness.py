@@ -64,7 +64,9 @@ if args[0] == "compose":
             if c["service"] == svc:
                 c["running"] = False
     elif cmd == "rm":
-        for cid in [k for k, c in cs.items() if c["service"] == svc and not c["running"]]:
+        stop = "-s" in rest
+        for cid in [k for k, c in cs.items() if c["service"] == svc
+                    and (stop or not c["running"])]:
             del cs[cid]
     elif cmd == "exec":
         print("5")
@@ -162,14 +164,20 @@ def test_compose_session_as_the_topology_tests_drive_it(fake_docker, tmp_path):
     assert [c.id for c in topo.procs["worker"]] == [w1.id, w2.id]
     assert "ready." in w2.log.read_text() and not w2.busy()
 
-    # the api killed and restarted
+    # the api killed and restarted; never a second API replica (it publishes the port)
     topo.procs["api"][-1].kill9()
     assert topo.start("api") is api and api.alive
+    assert topo.start("api") is api
+    assert [u[-2:] for u in _compose_calls(fake_docker, "up")][-1] == ["api=1", "api"]
 
     # redis killed and wiped, then up again; database sessions dropped
+    old_redis = topo.procs["redis"][0].id
     topo.stop_redis(wipe=True)
+    assert _compose_calls(fake_docker, "kill")[-1] == ["kill", "-s", "KILL", "redis"]
+    assert _compose_calls(fake_docker, "rm")[-1] == ["rm", "-f", "-s", "redis"]
     assert ["volume", "rm", "-f", f"{topo.project}_redisdata"] in fake_docker()
     topo.start_redis()
+    assert [c.id for c in topo.procs["redis"] if c.alive] != [old_redis]  # a fresh container
     assert topo.drop_database_connections() == 5
     psql = _compose_calls(fake_docker, "exec")[-1]
     assert psql[:4] == ["exec", "-T", "postgres", "psql"] and "pg_terminate_backend" in psql[-1]
