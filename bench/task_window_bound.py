@@ -116,11 +116,12 @@ def main(argv: list[str] | None = None) -> int:
           f"({r['stop_rule']})")
     print(f"flat spline: objective {r['flat_objective']:.4f}, task-window sum "
           f"{r['flat_task_sum']:.3f} m^2; half the objective {r['half_flat']:.4f}")
-    print(f"smallest task-window sum found {r['best_task_sum']:.3f} m^2 -> no CMRT's objective "
-          f"below {r['bound']:.4f} (that CMRT's full objective {r['best_full_objective']:.4f}"
-          f"{', falls' if r['best_fell'] else ''})")
+    print(f"smallest task-window sum found {r['best_task_sum']:.3f} m^2 -> bound on any CMRT's "
+          f"objective {r['bound']:.4f}, as good as the search (that CMRT's full objective "
+          f"{r['best_full_objective']:.4f}{', falls' if r['best_fell'] else ''})")
     print("halving is " + ("not excluded" if r["halving_possible"] else
-                           "out of reach of this CMRT form: the bound is above half the flat"))
+                           "out of reach of this CMRT form as far as this search found: the "
+                           "bound is above half the flat"))
     return 0
 
 
