@@ -28,13 +28,19 @@ from sim.spec import load_spec  # noqa: E402
 EARLY_DECAY_S = 0.4  # s, the decay's first part, where the bend's transient settles
 
 
-def windows(spec, cmrt) -> dict[str, float]:
-    ev = evaluate(spec, cmrt, traces=True)
-    t, e = ev.traces.t, np.nan_to_num(ev.traces.error)
+def phase_sums(spec, traces) -> dict[str, float]:
+    """Sum of e^2 (m^2) by phase, each phase the steps with t in (start, end]: preparation,
+    task, early_decay (the decay's first EARLY_DECAY_S), late_decay."""
+    t, e = traces.t, np.nan_to_num(traces.error)
     t0, t1 = spec.clip.task_start, spec.clip.task_start + spec.clip.duration
     edges = {"preparation": (0.0, t0), "task": (t0, t1),
              "early_decay": (t1, t1 + EARLY_DECAY_S), "late_decay": (t1 + EARLY_DECAY_S, 1e9)}
-    out = {k: float((e[(t > a) & (t <= b)] ** 2).sum()) for k, (a, b) in edges.items()}
+    return {k: float((e[(t > a) & (t <= b)] ** 2).sum()) for k, (a, b) in edges.items()}
+
+
+def windows(spec, cmrt) -> dict[str, float]:
+    ev = evaluate(spec, cmrt, traces=True)
+    out = phase_sums(spec, ev.traces)
     out["objective"] = ev.objective
     out["fell"] = ev.fell
     return out
