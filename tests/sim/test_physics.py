@@ -237,3 +237,102 @@ def test_poses_name_every_body_and_prop(humanoid):
         assert poses[-1][:2] == pytest.approx((FAR, 1.25))  # the lower link's centre
     finally:
         ph.close()
+
+
+# ---- hinges near +-180 deg (the shoulders' range ends at 180) ---------------------------------
+@pytest.mark.parametrize(("degrees", "rate"), [(175.0, 3.0), (178.0, 2.0), (180.0, 0.0)])
+def test_free_flight_with_arms_raised_gains_no_energy(humanoid, degrees, rate):
+    """Controller off, gravity on, no ground: both arms raised to 175-180 deg (moving up into
+    the 180 deg stop). Before the fix ODE read the angle past 180 as -180 + x, below the low
+    stop, and the stop's correction added ~60 kJ in 2 s; now the energy never rises and the
+    shoulders stay inside their range, read without a wrap."""
+    ch, arrays = humanoid
+    q = standing_state(ch, arrays)
+    q[1] += 5.0  # far above the ground: free flight
+    qd = np.zeros_like(q)
+    shoulders = [3 + ch.hinge_index(n) for n in ch.hinge_names if n.startswith("shoulder")]
+    assert len(shoulders) == 2
+    q[shoulders] = math.radians(degrees)
+    qd[shoulders] = rate
+    ph = Physics(ch, arrays)
+    try:
+        ph.reset(q, qd)
+        np.testing.assert_allclose(ph.read_state()[0], q, atol=1e-9)
+        e0 = ph.energy()
+        worst = -math.inf
+        for _ in range(2000):
+            ph.step()
+            worst = max(worst, ph.energy() - e0)
+            angles = ph.read_state()[0][shoulders]
+            # (a stop is soft: 0.2 deg of overshoot at 3 rad/s; a wrap would read ~ -180)
+            assert np.all(angles <= math.pi + math.radians(0.5)) and np.all(angles > 0.0)
+        assert worst <= 1e-6 * e0, f"energy rose by {worst:.3f} J"
+    finally:
+        ph.close()
+
+
+def test_only_hinges_reaching_180_move_their_ode_zero(humanoid):
+    from sim.physics import hinge_zero
+
+    ch, arrays = humanoid
+    ph = Physics(ch, arrays)
+    try:
+        moved = {ch.hinge_names[i]: math.degrees(z) for i, z in ph.hinge_zeros}
+        for k, (lo, hi) in enumerate(np.degrees(ch.limits)):
+            name = ch.hinge_names[k]
+            if hi >= 160.0 or lo <= -160.0:
+                assert moved[name] == pytest.approx(0.5 * (lo + hi))
+            else:
+                assert name not in moved
+        assert moved  # the humanoid's shoulders
+    finally:
+        ph.close()
+    with pytest.raises(SimError, match="cannot be kept"):
+        hinge_zero(-math.radians(175.0), math.radians(175.0))
+
+
+def test_catch_weld_conserves_momentum(humanoid):
+    """Gravity off, no ground contact: a 7 kg ball flying at 4 m/s reaches the right hand of
+    the floating character and is welded to it the moment it is within reach. The weld is an
+    internal impulse: the total linear momentum (x, y) and the angular momentum about the
+    origin of character + ball are the same before and after (an inelastic collision: kinetic
+    energy is lost), and the ball then moves with the hand."""
+    ch, arrays = humanoid
+    q = standing_state(ch, arrays)
+    q[1] += 3.0
+    ph = Physics(ch, arrays, [PropDef("ball", "sphere", (0.12,), 7.0, (0.0, 0.0))])
+    try:
+        ph.world.setGravity((0.0, 0.0, 0.0))
+        ph.reset(q)
+        hand = ph.geoms[ch.hands[0]]
+        hx, hy, _ = hand.getPosition()
+        ball = ph.prop("ball")
+        ball.body.setPosition((hx + 0.5, hy, 0.0))
+        ball.body.setLinearVel((-4.0, 0.0, 0.0))
+        reach = 0.12 + ch.geom(ch.hands[0]).radius + 0.01
+        before = after = None
+        e_before = e_after = None
+        for _ in range(400):
+            if before is None:
+                x, y, _z = ball.body.getPosition()
+                hx, hy, _ = hand.getPosition()
+                if math.hypot(x - hx, y - hy) <= reach:
+                    before, e_before = ph.momentum(), ph.energy()
+                    ph.attach_prop("ball", ch.body_names[ch.geom(ch.hands[0]).body])
+            ph.step()
+            if before is not None and after is None:
+                after, e_after = ph.momentum(), ph.energy()
+        assert before is not None, "the ball never reached the hand"
+        print(f"momentum before {before}, after {after}; kinetic energy lost "
+              f"{e_before - e_after:.2f} J")
+        np.testing.assert_allclose(after[:2], before[:2], rtol=0, atol=1e-6 * 28.0)
+        assert after[2] == pytest.approx(before[2], abs=1e-5 * 28.0)
+        assert e_after < e_before  # inelastic
+        end = ph.momentum()
+        np.testing.assert_allclose(end, before, rtol=0, atol=1e-4)
+        body = ph.bodies[ch.geom(ch.hands[0]).body]
+        # (the weld is as soft as every joint, CFM 1e-6: 1.3 mm/s of 2.9 m/s measured)
+        np.testing.assert_allclose(ball.body.getLinearVel()[:2],
+                                   body.getPointVel(ball.body.getPosition())[:2], rtol=2e-3)
+    finally:
+        ph.close()
