@@ -18,6 +18,7 @@ class Traces:
     cm: np.ndarray  # (n, 2) centre of mass x, y
     cm_ref: np.ndarray  # (n, 2) controller's CM reference x, y (support centre + CMRT)
     error: np.ndarray  # cp - support, NaN where no contact
+    normal: np.ndarray  # N, total normal force of the feet's ground contacts
 
     def to_dict(self) -> dict[str, list]:
         def clean(a: np.ndarray) -> list:
@@ -26,9 +27,9 @@ class Traces:
         return {k: clean(np.asarray(v)) for k, v in asdict(self).items()}
 
     def to_csv(self, path: str) -> None:
-        header = "t,cp,support,cm_x,cm_y,cm_ref_x,cm_ref_y,error"
+        header = "t,cp,support,cm_x,cm_y,cm_ref_x,cm_ref_y,error,normal"
         table = np.column_stack(
-            [self.t, self.cp, self.support, self.cm, self.cm_ref, self.error]
+            [self.t, self.cp, self.support, self.cm, self.cm_ref, self.error, self.normal]
         )
         np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.6g")
 

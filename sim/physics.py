@@ -182,6 +182,7 @@ class Prop:
         b.setAngularVel((0.0, 0.0, d.angular_velocity))
         b.setForce((0.0, 0.0, 0.0))
         b.setTorque((0.0, 0.0, 0.0))
+        b.enable()
         self._reset_links()
         if d.hanging is None:
             self.plane.attach(self.body, ode.environment)

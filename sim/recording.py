@@ -22,7 +22,7 @@ FRAME_EVERY = max(1, int(round(1.0 / (FRAME_RATE * DT))))
 class Recorder:
     def __init__(self, n_steps: int, physics: Physics):
         self.physics = physics
-        self.tr = {k: np.full(n_steps, np.nan) for k in ("t", "cp", "support", "error")}
+        self.tr = {k: np.full(n_steps, np.nan) for k in ("t", "cp", "support", "error", "normal")}
         self.cm = np.full((n_steps, 2), np.nan)
         self.ref = np.full((n_steps, 2), np.nan)
         self.frames = Frames(rate=1.0 / (FRAME_EVERY * DT), names=physics.pose_names(), t=[],
@@ -30,10 +30,11 @@ class Recorder:
         self._last_cp = math.nan
 
     def trace(self, k: int, t: float, cp: float, s: float, e: float, c: np.ndarray,
-              c_ref: tuple[float, float]) -> None:
+              c_ref: tuple[float, float], normal: float) -> None:
         """Step k, ending at time t (s): measured CP (NaN without contact), support centre,
-        CP error, CM (x, y), CM reference (x, dy)."""
+        CP error, CM (x, y), CM reference (x, dy), the feet's total normal force (N)."""
         tr = self.tr
+        tr["normal"][k] = normal
         tr["t"][k] = t
         tr["cp"][k] = cp
         tr["support"][k] = s
@@ -56,5 +57,6 @@ class Recorder:
     def result(self, n: int) -> tuple[Traces, Frames]:
         tr = self.tr
         traces = Traces(t=tr["t"][:n], cp=tr["cp"][:n], support=tr["support"][:n],
-                        cm=self.cm[:n], cm_ref=self.ref[:n], error=tr["error"][:n])
+                        cm=self.cm[:n], cm_ref=self.ref[:n], error=tr["error"][:n],
+                        normal=tr["normal"][:n])
         return traces, self.frames

@@ -43,10 +43,15 @@ MIN_CONTACT_FORCE = 1.0  # N: below this total normal force a step has no CP mea
 DIVERGENCE_CHECK_STEPS = 10  # the state is checked for divergence every this many steps
 
 
-def standing_state(ch: Character, arrays: ModelArrays) -> np.ndarray:
+def standing_state(ch: Character, arrays: ModelArrays,
+                   pose: dict[int, float] | None = None) -> np.ndarray:
     """q of the standing pose: feet flat with the right heel where the zero pose has it; with
-    `balance_standing`, the body leans at the ankles so the CM is over the support centre."""
+    `balance_standing`, the body leans at the ankles so the CM is over the support centre.
+    `pose` ({hinge index: rad} relative to the standing pose, e.g. arms held out) changes the
+    pose before the lean is found."""
     hinge = ch.standing_offsets.copy()
+    for j, off in (pose or {}).items():
+        hinge[j] += off
     feet_chains = []
     for f in ch.feet:
         chain, b = [], int(f)
@@ -114,7 +119,7 @@ class Rollout:
         self.arrays = ModelArrays.from_character(ch)
         self.task = spec.task.build(spec, ch)
         self.physics = Physics(ch, self.arrays, self.task.props)
-        self.q0 = standing_state(ch, self.arrays)
+        self.q0 = standing_state(ch, self.arrays, self.task.initial_pose)
         # Start with the ground contacts already loaded: sink the body by the static
         # penetration of a soft contact, depth = (m g / contacts) / k with the contact
         # stiffness k = ERP / (dt CFM); otherwise the first steps score a loading transient.
@@ -223,7 +228,8 @@ class Rollout:
                 max_e = max(max_e, abs(e))
                 contact_steps += 1
             if rec is not None:
-                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c, c_ref)
+                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c, c_ref,
+                          fy)
         phys.clear_contacts()
         error_norm = math.sqrt(sq_sum)
         fell = fall_time is not None

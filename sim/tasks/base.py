@@ -15,6 +15,8 @@ Contract of a `TaskConfig`:
 Contract of a `Task` (one per simulator; `reset` before each run):
   * `props`: the PropDefs the physics must hold (built once per simulator).
   * `motions`: reference pose changes (start s, duration s, {hinge index: offset rad}).
+  * `initial_pose`: {hinge index: offset rad} from the standing pose that the clip starts in
+    and holds (e.g. hands held out); the standing lean is found with it.
   * `reset(physics)`; `before_step(physics, t)` (events: external forces, a throw) runs after
     the controller's torques are applied and before the step; `after_step(physics, t)` (a
     catch, a hit) runs after the step while its contacts are still readable. Both are called
@@ -84,6 +86,10 @@ class Task:
     @property
     def motions(self) -> list[MotionDef]:
         return []
+
+    @property
+    def initial_pose(self) -> dict[int, float]:
+        return {}
 
     def reset(self, physics: Any) -> None:
         return None
