@@ -22,14 +22,14 @@ from fastapi import FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse
 
+from cmrt.settings import Settings, get_settings
 from optim.errors import BasisError, InterpolationError
 from service import schemas
 from sim.errors import SpecError
 from sim.spec import parse_spec
 from store import NotFound, Repository, open_repository
 from store.records import JOB_STATUSES
-from worker.config import WorkerConfig
-from worker.executors import CeleryExecutor, GenerationExecutor, LocalPoolExecutor
+from worker.executors import CeleryExecutor, GenerationExecutor, make_generation_executor
 from worker.library import build_library_basis, interpolate_library
 from worker.runner import JobRunner
 
@@ -170,28 +170,18 @@ def _library_query(request: Request) -> dict[str, float]:
     return params
 
 
-def make_executor(config: WorkerConfig) -> GenerationExecutor:
-    if config.distributed:
-        from worker.celery_app import make_celery
-
-        return CeleryExecutor(config, make_celery(config.broker_url, config.result_backend,
-                                                  config))
-    return LocalPoolExecutor(config)
-
-
 def create_app(
-    settings: Any | None = None,
+    settings: Settings | None = None,
     *,
     repo: Repository | None = None,
     executor: GenerationExecutor | None = None,
-    config: WorkerConfig | None = None,
     run_drivers: bool = True,
 ) -> FastAPI:
     """Build the app. Defaults: settings from the environment (`cmrt.settings.get_settings`),
     repository migrated to the newest schema, executor chosen by the broker setting."""
-    config = config or WorkerConfig(settings)
+    config = settings or get_settings()
     repo = repo or open_repository(config.database_url)
-    executor = executor or make_executor(config)
+    executor = executor or make_generation_executor(config)
     runner = JobRunner(repo, executor, config)
     max_body = config.max_body_bytes
 

@@ -24,12 +24,13 @@ from typing import Any
 
 import numpy as np
 
+from cmrt.settings import Settings
 from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
 from optim.executors import PoolExecutor
+from sim.spec import TaskSpec
 from store import EvaluationClaim, EvaluationRecord, Repository
 from store.records import PENDING
-from worker.config import WorkerConfig
 from worker.evaluation import (
     ObjectiveFactory,
     SpecCache,
@@ -62,12 +63,13 @@ class GenerationExecutor(ABC):
         self,
         repo: Repository,
         job_id: str,
-        spec_data: dict[str, Any],
+        spec: TaskSpec,
         generation: int,
         population: int,
         check: Checkpoint,
     ) -> list[EvaluationRecord]:
-        """Resolve every pending evaluation of (job, generation); return them in index order."""
+        """Resolve every pending evaluation of (job, generation); return them in index order.
+        `spec` is the job's parsed spec (the driver parses it once)."""
 
     def stats(self) -> dict[str, Any]:
         return {}
@@ -81,18 +83,18 @@ class LocalPoolExecutor(GenerationExecutor):
 
     def __init__(
         self,
-        config: WorkerConfig,
+        config: Settings,
         *,
         pool: BatchExecutor | None = None,
         objective_factory: ObjectiveFactory | None = None,
     ) -> None:
         self.config = config
-        self.pool = pool if pool is not None else PoolExecutor(config.local_workers)
+        self.pool = pool if pool is not None else PoolExecutor(config.workers)
         self.cache = SpecCache(objective_factory or default_objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
-    def evaluate(self, repo, job_id, spec_data, generation, population, check):
-        _, objective = self.cache.get(repo, job_id, spec_data)
+    def evaluate(self, repo, job_id, spec, generation, population, check):
+        _, objective = self.cache.get(repo, job_id, spec)
         while True:
             check()
             rows = repo.evaluations(job_id, generation)
@@ -175,7 +177,7 @@ def _broker_errors() -> tuple[type[BaseException], ...]:
 class CeleryExecutor(GenerationExecutor):
     kind = "celery"
 
-    def __init__(self, config: WorkerConfig, app: Any | None = None) -> None:
+    def __init__(self, config: Settings, app: Any | None = None) -> None:
         if app is None:
             from worker.celery_app import app as default_app
 
@@ -236,7 +238,7 @@ class CeleryExecutor(GenerationExecutor):
         with self._lock:
             self._last_progress = time.monotonic()
 
-    def evaluate(self, repo, job_id, spec_data, generation, population, check):
+    def evaluate(self, repo, job_id, spec, generation, population, check):
         """Send the unresolved candidates and wait for the store to hold all their results.
 
         Lost messages are sent again (idempotent tasks) in two cases: (1) stall: no evaluation
@@ -253,7 +255,7 @@ class CeleryExecutor(GenerationExecutor):
         sent_at = dict.fromkeys(unresolved, time.monotonic())
         last_send = time.monotonic()
         resolved = initially = population - len(unresolved)
-        overdue_after = self.config.visibility_timeout + self.config.task_time_limit
+        overdue_after = self.config.visibility_timeout + self.config.eval_time_limit
         while True:
             counts = repo.evaluation_counts(job_id, generation)
             if counts.resolved >= population:
@@ -291,3 +293,14 @@ class CeleryExecutor(GenerationExecutor):
 
     def stats(self):
         return {"sent": self.sent, "resent": self.resent}
+
+
+def make_generation_executor(settings: Settings) -> GenerationExecutor:
+    """The executor the settings select: Celery when a broker is configured, else the local
+    process pool (embedded default)."""
+    if settings.distributed:
+        from worker.celery_app import make_celery
+
+        app = make_celery(settings.broker_url, settings.celery_result_backend, settings)
+        return CeleryExecutor(settings, app)
+    return LocalPoolExecutor(settings)

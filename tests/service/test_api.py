@@ -14,7 +14,7 @@ from service.app import create_app
 
 @pytest.fixture
 def client(settings, config, repo, local_executor):
-    app = create_app(settings, repo=repo, executor=local_executor, config=config)
+    app = create_app(config, repo=repo, executor=local_executor)
     with TestClient(app) as c:
         yield c
 

@@ -75,7 +75,7 @@ def test_half_done_generation_is_not_evaluated_again(repo, config):
     xs = opt.ask()
     repo.put_pending_evaluations(job.id, 1, [list(x) for x in xs])
     for i in (0, 1):
-        repo.record_evaluation(job.id, 1, i, objective=0.5, fell=False, cpu_seconds=0.0)
+        repo.store_result(job.id, 1, i, objective=0.5, fell=False, cpu_seconds=0.0)
     calls.clear()
     assert JobDriver(repo, job.id, ex, config).run() == STOPPED
     rows = repo.evaluations(job.id, 1)
