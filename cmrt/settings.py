@@ -27,6 +27,8 @@ CMRT_BROKER_DEADLINE      driver: fail the job after the broker was   120 (s)
                           unreachable this long
 CMRT_SCAN_INTERVAL        runner: look for orphaned jobs every        2 (s)
 CMRT_QUEUE                Celery queue of evaluation tasks            cmrt
+CMRT_WORKER_CONCURRENCY   `cmrt worker` processes                     None (the CPUs)
+CMRT_LOG_LEVEL            log level of `cmrt serve` / `cmrt worker`   INFO
 ========================  ==========================================  =========================
 
 Invariant (checked): eval_time_limit < visibility_timeout, so Redis never re-delivers a message
@@ -40,9 +42,9 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 DEFAULT_DATA_DIR = Path("./cmrt-data")
@@ -84,6 +86,20 @@ class Settings(BaseSettings):
     scan_interval: Annotated[float, Field(gt=0.0)] = 2.0
     #: Celery queue of evaluation tasks.
     queue: Annotated[str, Field(min_length=1, max_length=200)] = "cmrt"
+    #: Processes of a `cmrt worker` (None: one per CPU).
+    worker_concurrency: Annotated[int | None, Field(ge=1, le=256)] = None
+    #: Log level of `cmrt serve` and `cmrt worker`.
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"] = "INFO"
+
+    @field_validator("worker_concurrency", mode="before")
+    @classmethod
+    def _zero_is_unset(cls, v: object) -> object:
+        return None if v in (0, "0", "") else v
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _upper(cls, v: object) -> object:
+        return v.upper() if isinstance(v, str) else v
 
     @model_validator(mode="after")
     def _defaults_and_invariants(self) -> Settings:

@@ -11,7 +11,7 @@ The contract is split by aggregate, each part with its docstrings: `store.jobs.J
 `store.library.LibraryRepository` (CMRT library, PCA bases); `Repository` is all three and
 `SqlRepository` their SQLAlchemy implementations together.
 
-Typical job flow (docs/service.md, "Jobs"):
+Typical job flow (docs/service.md, "Architecture"):
 
 1. service: `create_job(...)` -> queued.
 2. driver: `acquire_driver_lease(job, me, ttl)`; `set_job_status(job, "running")`; keeps the

@@ -1,5 +1,5 @@
 """The Celery application: broker, result backend and task settings from `cmrt.settings`
-(the delivery guarantees below are described in docs/service.md, "Evaluations on Celery").
+(the delivery guarantees below are described in docs/service.md, "Architecture").
 
 - `task_acks_late` + `task_reject_on_worker_lost`: a message is acknowledged only after its task
   returned; if the pool process dies mid-task the message goes back to the queue.

@@ -1,5 +1,5 @@
 """The Celery side of the distributed path, without a broker: task and app settings required by
-design.md ("Jobs"), what the driver sends, and when it polls the store."""
+docs/service.md ("Architecture"), what the driver sends, and when it polls the store."""
 
 from __future__ import annotations
 
