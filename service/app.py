@@ -135,6 +135,7 @@ def _cmrt_out(r: Any, request: Request, full: bool = False) -> dict[str, Any]:
         "character": r.character,
         "objective": r.objective,
         "objective_without": r.objective_without,
+        "winner": r.winner,
         "fell": r.fell,
         "job_id": r.job_id,
         "created_at": r.created_at,

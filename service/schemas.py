@@ -89,6 +89,9 @@ class CmrtSummary(BaseModel):
     character: dict[str, Any]
     objective: float
     objective_without: float | None
+    #: "search": the best candidate CMA-ES found; "flat": the flat spline (no anticipation)
+    #: did better, so the entry is the flat spline.
+    winner: str
     fell: bool
     job_id: str | None
     created_at: datetime
