@@ -29,6 +29,10 @@ CMRT_SCAN_INTERVAL        runner: look for orphaned jobs every        2 (s)
 CMRT_QUEUE                Celery queue of evaluation tasks            cmrt
 CMRT_WORKER_CONCURRENCY   `cmrt worker` processes                     None (the CPUs)
 CMRT_LOG_LEVEL            log level of `cmrt serve` / `cmrt worker`   INFO
+CMRT_MAX_JOB_SIM_SECONDS  ceiling of a job's budget (simulated s:     50000
+                          evaluations x clip length; worker.admission)
+CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 8
+                          has in the queue at once (fair share)
 ========================  ==========================================  =========================
 
 Invariant (checked): eval_time_limit < visibility_timeout, so Redis never re-delivers a message
@@ -88,6 +92,13 @@ class Settings(BaseSettings):
     queue: Annotated[str, Field(min_length=1, max_length=200)] = "cmrt"
     #: Processes of a `cmrt worker` (None: one per CPU).
     worker_concurrency: Annotated[int | None, Field(ge=1, le=256)] = None
+    #: Ceiling of one job's budget in simulated seconds (worker.admission): above it a job is
+    #: refused (422).
+    max_job_sim_seconds: Annotated[float, Field(gt=0.0)] = 50_000.0
+    #: Celery: the most evaluations of one job sent and not yet resolved at any time, so jobs
+    #: share the queue (a small job waits behind at most this many of a large one's); about
+    #: twice the evaluation processes keeps them all busy between the driver's polls.
+    dispatch_window: Annotated[int, Field(ge=1, le=10_000)] = 8
     #: Log level of `cmrt serve` and `cmrt worker`.
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"] = "INFO"
 

@@ -29,6 +29,7 @@ from sim.errors import SpecError
 from sim.spec import parse_spec
 from store import NotFound, Repository, open_repository
 from store.records import JOB_STATUSES
+from worker import admission
 from worker.executors import CeleryExecutor, GenerationExecutor, make_generation_executor
 from worker.library import build_library_basis, interpolate_library
 from worker.runner import JobRunner
@@ -266,13 +267,18 @@ def create_app(
                 b.check_spec(spec)
             except BasisError as err:
                 raise ApiError(422, f"basis: {err}") from None
+        try:  # the job's budget against the server's ceiling (worker.admission)
+            budget = admission.check(spec, config, dimension=None if basis is None else b.k)
+        except admission.BudgetExceeded as err:
+            raise ApiError(422, str(err)) from None
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task,
                               seed=0 if seed is None else seed, basis_id=basis)
         if run_drivers:
             runner.submit(job.id)
         url = str(request.url_for("get_job", job_id=job.id))
-        return JSONResponse({"id": job.id, "url": url, "status": job.status},
+        return JSONResponse({"id": job.id, "url": url, "status": job.status,
+                             "budget": budget.to_dict()},
                             status_code=202, headers={"Location": url})
 
     @app.get("/jobs", response_model=schemas.JobPage, tags=["jobs"], summary="List jobs")

@@ -24,10 +24,20 @@ class JobRequest(BaseModel):
     basis: Annotated[str, Field(max_length=64)] | None = None
 
 
+class JobBudget(BaseModel):
+    """The most the job may cost (worker.admission): evaluations x clip seconds."""
+
+    evaluations: int
+    clip_seconds: float
+    sim_seconds: float
+    ceiling_sim_seconds: float | None
+
+
 class JobAccepted(BaseModel):
     id: str
     url: str
     status: str
+    budget: JobBudget
 
 
 class JobOut(BaseModel):
