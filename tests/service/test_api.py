@@ -96,7 +96,7 @@ def test_basis_and_reduced_space_job(client):
 
 
 def test_cancel(client):
-    j = _submit(client, bend_spec(max_evaluations=100000, min_evaluations=100000))
+    j = _submit(client, bend_spec(max_evaluations=50000, min_evaluations=50000))
     time.sleep(0.3)
     r = client.post(f"/jobs/{j}/cancel")
     assert r.status_code == 202
