@@ -69,6 +69,12 @@ _STORE_RESULT = (
     )
 )
 _EVALUATION_ID = select(_EV.c.id).where(*_EV_KEY)
+#: Give back an attempt of a pending evaluation (a graceful stop cut it short).
+_RELEASE_ATTEMPT = (
+    update(_EV)
+    .where(*_EV_KEY, _EV.c.status == PENDING, _EV.c.attempts > 0)
+    .values(attempts=_EV.c.attempts - 1, updated_at=bindparam("p_now"))
+)
 #: PostgreSQL: the writes above run in autocommit mode, each statement its own transaction (one
 #: round trip), and commit asynchronously by this condition: `set_config(..., true)` sets
 #: synchronous_commit for the current transaction only, and the setting in effect when a
@@ -175,6 +181,14 @@ class EvaluationRepository(abc.ABC):
         Raises NotFound when the evaluation does not exist; ValueError for a NaN objective or
         a missing objective without `error`.
         """
+
+    @abc.abstractmethod
+    def release_attempt(self, job_id: str, generation: int, index: int) -> bool:
+        """Give back one attempt of a pending evaluation (`attempts - 1`, never below 0): for
+        an attempt cut short by a graceful stop (the process shutting down stopped it), which
+        must not count toward the caller's limit. True if an attempt was given back; a done or
+        failed evaluation is left unchanged (False). Raises NotFound for an unknown
+        evaluation."""
 
     def fail_evaluation(self, job_id: str, generation: int, index: int, error: str) -> bool:
         """Mark a pending evaluation failed (e.g. attempts exhausted): `store_result` with
@@ -319,6 +333,15 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
         }  # fmt: skip
         with self._evaluation_write() as conn:
             if conn.execute(self._store_result, {**key, **values}).rowcount == 1:
+                return True
+            if conn.execute(_EVALUATION_ID, key).first() is None:
+                raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
+            return False
+
+    def release_attempt(self, job_id, generation, index):
+        key = {"p_job_id": job_id, "p_generation": int(generation), "p_index": int(index)}
+        with self._evaluation_write() as conn:
+            if conn.execute(_RELEASE_ATTEMPT, {**key, "p_now": self._clock()}).rowcount == 1:
                 return True
             if conn.execute(_EVALUATION_ID, key).first() is None:
                 raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")

@@ -2,9 +2,11 @@
 candidates are already stored as pending evaluations (keyed by job, generation, index) and the
 executor returns once every one of them is resolved (done or failed).
 
-- `LocalPoolExecutor` (embedded default, no broker): evaluates in a local process pool
-  (`optim.executors.PoolExecutor`) and upserts the results itself; attempts are counted the same
-  way, so a candidate that kills its pool process fails its job after `max_attempts`.
+- `LocalPoolExecutor` (embedded default, no broker): evaluates in this process' `FairPool`
+  (worker.fairpool: round robin between jobs, a stopped job's running candidates dropped) and
+  upserts the results itself; attempts are counted the same way, so a candidate that kills its
+  pool process fails its job after `max_attempts`; attempts cut short by a graceful stop
+  (shutdown) are given back (`release_attempt`).
 - `CeleryExecutor`: sends one `evaluate_candidate(job_id, generation, index)` task per pending
   candidate and waits by polling the store's counts (never `.get()`); lost messages are sent
   again (idempotent, see `CeleryExecutor.evaluate`), so a message lost with a broker restart or
@@ -27,7 +29,6 @@ import numpy as np
 from cmrt.settings import Settings
 from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
-from optim.executors import PoolExecutor
 from sim.spec import TaskSpec
 from store import EvaluationClaim, EvaluationRecord, Repository
 from store.records import PENDING
@@ -38,6 +39,7 @@ from worker.evaluation import (
     default_objective_factory,
     outcome_fields,
 )
+from worker.fairpool import FairPool
 
 log = logging.getLogger(__name__)
 
@@ -78,18 +80,47 @@ class GenerationExecutor(ABC):
         pass
 
 
+class _BatchPool:
+    """A `FairPool` stand-in over an optim `Executor` (tests: a serial executor, one batch per
+    call; a failed batch counts as every candidate's process dying)."""
+
+    def __init__(self, executor: BatchExecutor) -> None:
+        self.executor = executor
+
+    @property
+    def workers(self) -> int:
+        return self.executor.workers
+
+    def run(self, job, fn, batch, check, on_result) -> None:
+        check()
+        try:
+            outs: list[Any] = self.executor.map(fn, list(batch))
+        except EvaluationError as err:
+            outs = [err] * len(batch)
+        for i, out in enumerate(outs):
+            on_result(i, out)
+
+    def close(self) -> None:
+        self.executor.close()
+
+
 class LocalPoolExecutor(GenerationExecutor):
+    """Evaluates in this process' `FairPool` (fair share between jobs; a cancelled or stopped
+    job's running candidates are dropped within `fairpool.POLL_S`)."""
+
     kind = "local-pool"
 
     def __init__(
         self,
         config: Settings,
         *,
-        pool: BatchExecutor | None = None,
+        pool: BatchExecutor | FairPool | None = None,
         objective_factory: ObjectiveFactory | None = None,
     ) -> None:
         self.config = config
-        self.pool = pool if pool is not None else PoolExecutor(config.workers)
+        if pool is None:
+            pool = FairPool(config.workers, time_limit=config.eval_time_limit)
+        self.pool: Any = pool if isinstance(pool, FairPool) else _BatchPool(pool)
         self.cache = SpecCache(objective_factory or default_objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
@@ -97,9 +128,8 @@ class LocalPoolExecutor(GenerationExecutor):
         _, objective = self.cache.get(repo, job_id, spec)
         while True:
             check()
-            rows = repo.evaluations(job_id, generation)
             todo: list[EvaluationClaim] = []
-            for r in rows:
+            for r in repo.evaluations(job_id, generation):
                 if r.status != PENDING:
                     continue
                 claim = repo.claim_evaluation(job_id, generation, r.index)
@@ -113,13 +143,27 @@ class LocalPoolExecutor(GenerationExecutor):
                 todo.append(claim)
             if not todo:
                 return repo.evaluations(job_id, generation)
-            try:
-                outs = self.pool.map(objective, [np.asarray(r.params, dtype=float) for r in todo])
-            except EvaluationError as err:  # a pool process died: count it, try the rest again
-                log.warning("job %s generation %d: %s", job_id, generation, err)
-                continue
-            for c, out in zip(todo, outs, strict=True):
+            settled: set[int] = set()  # stored, or its process died (the attempt counts)
+
+            def on_result(i: int, out: Any, todo=todo, settled=settled) -> None:
+                c = todo[i]
+                if isinstance(out, EvaluationError):  # its process died: the attempt counts
+                    log.warning("job %s generation %d candidate %d: %s", job_id, generation,
+                                c.index, out)
+                    settled.add(i)
+                    return
                 repo.store_result(job_id, generation, c.index, **outcome_fields(out, self.node))
+                settled.add(i)
+
+            try:
+                self.pool.run(job_id, objective, [np.asarray(c.params, dtype=float)
+                                                  for c in todo], check, on_result)
+            except DriverInterruptError as why:
+                if str(why) == "shutdown":  # a graceful stop is not a crash: un-count them
+                    for i, c in enumerate(todo):
+                        if i not in settled:
+                            repo.release_attempt(job_id, generation, c.index)
+                raise
 
     def stats(self):
         return {"workers": self.pool.workers}
