@@ -21,6 +21,7 @@ import socket
 import threading
 import time
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -233,6 +234,9 @@ class CeleryExecutor(GenerationExecutor):
         self._errors = _broker_errors()
         self._lock = threading.Lock()
         self._last_progress = time.monotonic()
+        #: Celery task ids of the messages sent, per (job, generation): what a cancel revokes.
+        self._task_ids: dict[tuple[str, int], dict[int, str]] = {}
+        self.revoked = 0
 
     # -- broker ------------------------------------------------------------------------------
     def _send(
@@ -246,7 +250,7 @@ class CeleryExecutor(GenerationExecutor):
         while pending:
             i = pending[0]
             try:
-                self.app.send_task(
+                res = self.app.send_task(
                     TASK_EVALUATE,
                     args=[job_id, generation, i],
                     queue=self.config.queue,
@@ -257,6 +261,9 @@ class CeleryExecutor(GenerationExecutor):
                 )
                 pending.pop(0)
                 self.sent += 1
+                if res is not None and getattr(res, "id", None):
+                    with self._lock:
+                        self._task_ids.setdefault((job_id, generation), {})[i] = res.id
                 down_since, delay = None, 0.2
             except self._errors as err:
                 now = time.monotonic()
@@ -282,61 +289,104 @@ class CeleryExecutor(GenerationExecutor):
         with self._lock:
             self._last_progress = time.monotonic()
 
+    def _revoke(self, job_id: str, generation: int, indices: Sequence[int]) -> None:
+        """Drop a cancelled job's sent evaluations: revoke their messages (a worker discards
+        them unstarted) and kill the worker processes running them (`terminate`, SIGKILL)."""
+        with self._lock:
+            ids = self._task_ids.get((job_id, generation), {})
+            task_ids = [ids[i] for i in indices if i in ids]
+        if not task_ids:
+            return
+        try:
+            self.app.control.revoke(task_ids, terminate=True, signal="SIGKILL")
+            self.revoked += len(task_ids)
+            log.info("job %s: revoked %d evaluations of generation %d", job_id, len(task_ids),
+                     generation)
+        except self._errors as err:  # the claims skip them anyway (the job is terminal)
+            log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
+
     def evaluate(self, repo, job_id, spec, generation, population, check):
-        """Send the unresolved candidates and wait for the store to hold all their results.
+        """Send the unresolved candidates, at most `dispatch_window` unresolved at a time (so
+        jobs share the queue fairly), and wait for the store to hold all their results.
 
         Lost messages are sent again (idempotent tasks) in two cases: (1) stall: no evaluation
         of any job driven here finished for `stall_timeout` s (so workers are idle or gone while
         this generation is unresolved: the queue lost its messages, e.g. a broker restart
         without persistence, or a worker died with them); (2) overdue: a candidate is unresolved
-        `visibility_timeout + task_time_limit` s after it was sent, by which time Redis would
-        have re-delivered an unacknowledged message anyway.
+        `visibility_timeout + eval_time_limit` s after it was sent, by which time Redis would
+        have re-delivered an unacknowledged message anyway. On cancel the sent evaluations are
+        revoked (`_revoke`) before the interrupt propagates.
         """
         rows = repo.evaluations(job_id, generation)
-        unresolved = [r.index for r in rows if r.status == PENDING]
+        unsent = deque(r.index for r in rows if r.status == PENDING)
         schedule = PollSchedule(time.monotonic(), self.config.poll_interval)
-        self._send(job_id, generation, unresolved, check)
-        sent_at = dict.fromkeys(unresolved, time.monotonic())
-        last_send = time.monotonic()
-        resolved = initially = population - len(unresolved)
-        overdue_after = self.config.visibility_timeout + self.config.eval_time_limit
-        while True:
-            counts = repo.evaluation_counts(job_id, generation)
-            if counts.resolved >= population:
+        window = self.config.dispatch_window
+        sent_at: dict[int, float] = {}  # sent, not seen resolved yet
+
+        def top_up() -> None:
+            batch = []
+            while unsent and len(sent_at) + len(batch) < window:
+                batch.append(unsent.popleft())
+            if batch:
+                self._send(job_id, generation, batch, check)
+                sent_at.update(dict.fromkeys(batch, time.monotonic()))
+
+        try:
+            top_up()
+            last_send = time.monotonic()
+            resolved = initially = population - len(unsent) - len(sent_at)
+            overdue_after = self.config.visibility_timeout + self.config.eval_time_limit
+            while True:
+                counts = repo.evaluation_counts(job_id, generation)
+                if counts.resolved >= population:
+                    if counts.resolved > resolved:
+                        self._progress()
+                    return repo.evaluations(job_id, generation)
+                now = time.monotonic()
+                pending: set[int] | None = None
                 if counts.resolved > resolved:
+                    resolved = counts.resolved
                     self._progress()
-                return repo.evaluations(job_id, generation)
-            now = time.monotonic()
-            if counts.resolved > resolved:
-                resolved = counts.resolved
-                self._progress()
-            with self._lock:
-                quiet = now - max(self._last_progress, last_send)
-            overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
-            if quiet > self.config.stall_timeout or overdue:
-                rows = repo.evaluations(job_id, generation)
-                pending = {r.index for r in rows if r.status == PENDING}
-                again = sorted(pending if quiet > self.config.stall_timeout
-                               else pending.intersection(overdue))
-                if again:
-                    log.warning(
-                        "job %s generation %d: %s; sending %d unresolved evaluations again",
-                        job_id, generation,
-                        f"no evaluation finished for {quiet:.0f} s" if not overdue
-                        else f"{len(overdue)} overdue", len(again))
-                    self._send(job_id, generation, again, check)
-                    self.resent += len(again)
-                last_send = time.monotonic()
-                sent_at.update(dict.fromkeys(again, last_send))
-                for i in list(sent_at):
-                    if i not in pending:
+                    pending = {r.index for r in repo.evaluations(job_id, generation)
+                               if r.status == PENDING}
+                    for i in [i for i in sent_at if i not in pending]:
                         del sent_at[i]
-            check()
-            time.sleep(schedule.delay(time.monotonic(), counts.resolved - initially,
-                                      population - counts.resolved))
+                    unsent = deque(i for i in unsent if i in pending)
+                    top_up()
+                with self._lock:
+                    quiet = now - max(self._last_progress, last_send)
+                overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
+                if quiet > self.config.stall_timeout or overdue:
+                    if pending is None:
+                        pending = {r.index for r in repo.evaluations(job_id, generation)
+                                   if r.status == PENDING}
+                    again = sorted(set(sent_at).intersection(pending) if not overdue
+                                   else pending.intersection(overdue))
+                    if again:
+                        log.warning(
+                            "job %s generation %d: %s; sending %d unresolved evaluations again",
+                            job_id, generation,
+                            f"no evaluation finished for {quiet:.0f} s" if not overdue
+                            else f"{len(overdue)} overdue", len(again))
+                        self._send(job_id, generation, again, check)
+                        self.resent += len(again)
+                    last_send = time.monotonic()
+                    sent_at.update(dict.fromkeys(again, last_send))
+                    for i in [i for i in sent_at if i not in pending]:
+                        del sent_at[i]
+                check()
+                time.sleep(schedule.delay(time.monotonic(), counts.resolved - initially,
+                                          population - counts.resolved))
+        except DriverInterruptError as why:
+            if str(why) == "cancel":
+                self._revoke(job_id, generation, list(sent_at))
+            raise
+        finally:
+            with self._lock:
+                self._task_ids.pop((job_id, generation), None)
 
     def stats(self):
-        return {"sent": self.sent, "resent": self.resent}
+        return {"sent": self.sent, "resent": self.resent, "revoked": self.revoked}
 
 
 def make_generation_executor(settings: Settings) -> GenerationExecutor:
