@@ -401,6 +401,18 @@ class LocalTopology(BaseTopology):
         self.procs["pg-link"] = [p]
         self._wait(lambda: "listening" in p.tail(5), "pg-link forwarder", 15, p)
 
+    def workers_answering(self, timeout: float = 1.0) -> list[str]:
+        """Node names of the Celery workers that answer a broadcast ping now (sent from the
+        root namespace: a worker answers only once its broker connection works again)."""
+        from celery import Celery
+
+        app = Celery("cmrt-it-ping", broker=f"redis://127.0.0.1:{self.redis_port}/0")
+        try:
+            replies = app.control.ping(timeout=timeout)
+        finally:
+            app.close()
+        return sorted(name for r in replies for name in r)
+
     def cut_worker_link(self) -> None:
         if self.worker_host is None:
             raise RuntimeError(self.worker_link_unavailable)
