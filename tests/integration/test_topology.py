@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import subprocess
 import time
 
 import pytest
@@ -54,6 +55,28 @@ def test_jobs_converge_land_in_library_and_interpolate_and_cancel(api):
     assert {a, b} <= {j["id"] for j in listed["items"]}
     health = api.get("/health").json()
     assert health["database"] == "ok" and health["broker"] == "ok"
+
+
+def test_workers_run_on_a_host_of_their_own(topology):
+    """Where namespaces can be made, every worker runs in the worker host's network namespace
+    and talks to Redis and PostgreSQL across its link (the first test above ran through it)."""
+    host = getattr(topology, "worker_host", None)
+    if host is None:
+        pytest.skip(f"workers on the test host: {topology.worker_link_unavailable}")
+    root = os.readlink("/proc/self/ns/net")
+    workers = [p for p in topology.procs["worker"] if p.alive]
+    assert workers and set(host.pids()) >= {p.popen.pid for p in workers}
+    for p in workers:
+        assert os.readlink(f"/proc/{p.popen.pid}/ns/net") != root
+        assert host.host_addr in p.env["CMRT_BROKER_URL"]
+        assert f"{host.host_addr}:{topology.pg_link_port}" in p.env["CMRT_DATABASE_URL"]
+    links = subprocess.run(host.wrap(["ss", "-tnH", "state", "established"]),
+                           capture_output=True, text=True, check=True).stdout
+    peers = {ln.split()[-1] for ln in links.splitlines()}
+    assert f"{host.host_addr}:{topology.redis_port}" in peers, links
+    if any("succeeded in" in p.log.read_text(errors="replace") for p in workers):
+        # a worker that ran a task keeps its database connection (through the forwarder)
+        assert f"{host.host_addr}:{topology.pg_link_port}" in peers, links
 
 
 def _wait_mid_generation(api, job_id, generation, timeout=90):
