@@ -275,12 +275,19 @@ def test_worker_link_cut_mid_generation_then_restored(api, topology):
           + (f"{t_ping - t_restore:.1f} s after the restore" if t_ping else "NOT")
           + f"; the driver sent the unresolved evaluations again {resends} times")
     for name, text in logs.items():
-        notable = [ln for ln in text.splitlines() if any(k in ln for k in (
-            "WARNING", "ERROR", "consumer:", "Connected", "lost", "Restoring", "limit"))]
         longest = max((float(m) for m in re.findall(r"succeeded in ([0-9.]+)s", text)),
                       default=0.0)
-        print(f"--- {name} since the cut: {text.count(' received')} tasks received, longest "
-              f"{longest:.1f} s; notable lines:\n" + "\n".join(notable[:12]))
+        counts = {what: text.count(needle) for what, needle in (
+            ("tasks received", " received"), ("tasks raised", "raised unexpected"),
+            ("soft limits", "Soft time limit"), ("hard limits", "Hard time limit"),
+            ("pool processes lost", "exited with"), ("failed acks", "Couldn't ack"),
+            ("broker connections lost", "Connection to broker lost"),
+            ("(re)connections", "Connected to"))}
+        notable = [ln for ln in text.splitlines() if any(k in ln for k in (
+            "WARNING", "ERROR", "CRITICAL", "consumer:", "Connected"))]
+        print(f"--- {name} since the cut: longest task {longest:.1f} s; "
+              + ", ".join(f"{k} {v}" for k, v in counts.items()) + "; notable lines:\n"
+              + "\n".join(ln[:240] for ln in notable[:10]))
     print("--- driver since the cut:\n" + "\n".join(
         ln for ln in driver_log.splitlines() if "HTTP/1.1" not in ln)[-2000:])
     assert during[0] == during[-1] == max(during), f"results stored through a cut link: {during}"
