@@ -107,9 +107,9 @@ def _spec(clip: float) -> dict:
     return {
         "name": "bench_bend",
         "family": "bench",
-        "task": "pose_change",
         "clip": {"preparation": prep, "duration": dur, "decay": round(clip - prep - dur, 3)},
-        "pose_change": {"target": {"waist": -30, "shoulder_r": 30, "shoulder_l": 30}},
+        "task": {"type": "pose_change",
+                 "target": {"waist": -30, "shoulder_r": 30, "shoulder_l": 30}},
     }
 
 
@@ -195,7 +195,6 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
     from store import open_repository
     from worker import faults
     from worker.celery_app import make_celery
-    from worker.config import WorkerConfig
     from worker.executors import CeleryExecutor
 
     env = dict(os.environ, CMRT_DATABASE_URL=scratch.db_url, CMRT_BROKER_URL=scratch.broker,
@@ -204,7 +203,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
         env.pop(k, None)
     repo = open_repository(scratch.db_url)
     settings = Settings(database_url=scratch.db_url, broker_url=scratch.broker)
-    cfg = WorkerConfig(settings)
+    cfg = settings
     app = make_celery(scratch.broker, scratch.broker, cfg)
     ex = CeleryExecutor(cfg, app)
     log = open(scratch.dir / f"worker{workers}.log", "wb")  # noqa: SIM115
@@ -266,7 +265,7 @@ def store_path(spec, n: int, scratch: _Scratch) -> dict:
     repo = open_worker_repository(scratch.db_url)  # as in a Celery worker process
     try:
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
-                              family=spec.family_name, task=spec.task, seed=0)
+                              family=spec.family_name, task=spec.task_type, seed=0)
         repo.set_job_status(job.id, "running")
         cache = SpecCache(lambda _spec: (lambda _x: 1.0))
         pop, times, cpu = 16, [], 0.0
