@@ -21,6 +21,10 @@ local (`LocalTopology`): each application service's own `command` and `environme
               postgresql+psycopg://postgres@127.0.0.1:5432/test) with a fresh database per run.
   Host names in the compose URLs (redis, postgres) are rewritten to these local addresses; the
   `python` of the commands is this interpreter. Logs go to the run's temporary folder.
+  Where network namespaces can be made (`netns_unavailable()` says why not), the workers run
+  on a host of their own (`NetnsHost`: a namespace and a veth link) and reach Redis (also bound
+  to the link's root side) and PostgreSQL (through tcp_forward.py on the link's root side) only
+  across that link, which `cut_worker_link()` / `restore_worker_link()` cut and restore.
 """
 
 from __future__ import annotations
@@ -627,6 +631,8 @@ class ComposeTopology(BaseTopology):
     """The topology run by `docker compose` itself (see module docstring)."""
 
     mode = "compose"
+    worker_link_unavailable = ("compose mode: cutting a container's link is not implemented; "
+                               "the partition drill runs in local mode (CMRT_IT_MODE=local)")
 
     def __init__(self, workdir: Path, overrides: dict[str, str] | None = None,
                  docker: str = "docker") -> None:

@@ -331,3 +331,19 @@ def test_stale_worker_hosts_of_dead_runs_are_swept():
         sleeper.kill()
         subprocess.run(["ip", "netns", "del", stale], capture_output=True)
         live.destroy()
+
+
+def test_worker_host_unavailable_gives_a_reason(monkeypatch, tmp_path):
+    """Without root, without `ip`, or turned off, the reason the partition drill skips with."""
+    import harness
+
+    monkeypatch.setenv("CMRT_IT_NETNS", "0")
+    assert "CMRT_IT_NETNS=0" in harness.netns_unavailable()
+    monkeypatch.delenv("CMRT_IT_NETNS")
+    monkeypatch.setattr(harness.shutil, "which", lambda name: None)
+    assert "`ip` (iproute2) not found" in harness.netns_unavailable()
+    monkeypatch.setattr(harness.shutil, "which", lambda name: f"/usr/sbin/{name}")
+    monkeypatch.setattr(harness.os, "geteuid", lambda: 1000)
+    assert "not root" in harness.netns_unavailable()
+    topo = LocalTopology(tmp_path / "run", netns=False)
+    assert topo.worker_host is None and "netns=False" in topo.worker_link_unavailable
