@@ -42,6 +42,10 @@ def make_celery(
         worker_prefetch_multiplier=1,
         task_time_limit=cfg.eval_time_limit,
         task_soft_time_limit=soft,
+        # No redis-py socket_timeout here, on purpose (partition drill, tests/integration): with
+        # one, an ack sent while the link is silently cut fails ("Couldn't ack") and kombu keeps
+        # the message's prefetch slot, so the worker never consumes again; without one, the ack
+        # waits for the link and the worker carries on once it is back.
         broker_transport_options={"visibility_timeout": cfg.visibility_timeout},
         result_backend_transport_options={"visibility_timeout": cfg.visibility_timeout},
         result_expires=3600,
