@@ -13,6 +13,7 @@ from sim.controllers import (
     FallController,
     GainScheduler,
     MomentumController,
+    Observation,
 )
 from sim.dynamics import GRAVITY, momentum_bias, step_model
 from sim.errors import SpecError
@@ -159,14 +160,39 @@ def test_cop_box_too_wide_is_a_spec_error():
                        "schedule": [{"set": {"cop_box": 0.2}}]})
 
 
+def _observation(sim: Rollout, q, qd) -> Observation:
+    a = sim.arrays
+    (M, h, c, cd, A_L, A_H, Js, pts, sole_x, lo, hi, _cl) = step_model(
+        q, qd, *a.args(), a.feet, a.sole_local, a.heel_local, a.toe_local, a.point_body,
+        a.point_local, a.point_radius)
+    return Observation(q, qd, M, h, c, cd, A_L, A_H, Js, pts, sole_x, (lo, hi))
+
+
 def test_both_controllers_follow_the_protocol():
+    """At the standing state: the momentum controller's torques hold it (its inverse dynamics
+    reproduce gravity, within the QP's small regularised accelerations) and it keeps balance;
+    the fall controller, reset on that state, holds that pose with zero torque at rest and
+    opposes a motion away from it."""
     sim = _bend_sim()
     try:
-        for ctl in (sim.controller, sim.fall_controller):
-            assert isinstance(ctl, MomentumController | FallController)
-            proto: Controller = ctl  # the static protocol; the run-time contract below
-            proto.reset(None)
-            assert proto.lost is None
+        q = sim.q0.copy()
+        qd = np.zeros_like(q)
+        obs = _observation(sim, q, qd)
+        mom: Controller = sim.controller
+        mom.reset(None, None)
+        tau = mom.act(obs, 0.0)
+        assert mom.lost is None and tau.shape == (sim.character.n_hinges,)
+        hinge = sim.character.hinge_index("waist")
+        assert abs(tau[hinge]) > 1.0  # holding the trunk against gravity is not free
+        fall: Controller = sim.fall_controller
+        fall.reset(obs)
+        assert fall.lost is None
+        np.testing.assert_array_equal(fall.act(obs, 0.0), np.zeros(sim.character.n_hinges))
+        moving = qd.copy()
+        moving[ROOT_DOF + hinge] = 1.0
+        assert fall.act(_observation(sim, q, moving), 0.0)[hinge] < 0.0
+        assert isinstance(sim.controller, MomentumController)
+        assert isinstance(sim.fall_controller, FallController)
     finally:
         sim.close()
 
