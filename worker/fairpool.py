@@ -53,6 +53,10 @@ POLL_S = 0.1
 OnResult = Callable[[int, "EvalOutcome | EvaluationError"], None]
 
 
+def _ping() -> int:
+    return os.getpid()
+
+
 def _slot_init(parent_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -78,15 +82,23 @@ class _Slot:
 
     def submit(self, task: _Task) -> cf.Future:
         if self.executor is None:
-            self.executor = cf.ProcessPoolExecutor(
-                max_workers=1, mp_context=self._ctx, initializer=_slot_init,
-                initargs=(os.getpid(),))
+            self._start()
         self.task = task
         task.started = time.monotonic()
         return self.executor.submit(evaluate_one, task.fn, task.params)
 
-    def kill(self) -> None:
+    def _start(self) -> None:
+        self.executor = cf.ProcessPoolExecutor(
+            max_workers=1, mp_context=self._ctx, initializer=_slot_init,
+            initargs=(os.getpid(),))
+
+    def kill(self, *, restart: bool = False) -> None:
+        """Kill the slot's process; with `restart` start its successor at once (its imports
+        then overlap the wait for the next candidate)."""
         ex, self.executor, self.task = self.executor, None, None
+        if restart:
+            self._start()
+            self.executor.submit(_ping)
         if ex is None:
             return
         procs = list(getattr(ex, "_processes", {}).values())  # private, but the only handle
@@ -186,7 +198,7 @@ class FairPool:
                 t.dropped = True
             for slot in self._slots:
                 if slot.task is not None and slot.task.job == job and slot.task in tasks:
-                    slot.kill()
+                    slot.kill(restart=not self._closed)
                     killed += 1
         self._dispatch()
         return killed
