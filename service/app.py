@@ -272,7 +272,7 @@ def create_app(
         except admission.BudgetExceeded as err:
             raise ApiError(422, str(err)) from None
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
-                              family=spec.family_name, task=spec.task,
+                              family=spec.family_name, task=spec.task_type,
                               seed=0 if seed is None else seed, basis_id=basis)
         if run_drivers:
             runner.submit(job.id)
