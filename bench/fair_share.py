@@ -43,16 +43,17 @@ TERMINAL = ("converged", "stopped", "failed", "cancelled")
 
 
 def small_spec(k: int) -> dict:
-    return {"name": f"small_{k}", "family": "bend", "task": "pose_change",
+    return {"name": f"small_{k}", "family": "bend",
             "clip": {"preparation": 0.3, "duration": 0.3, "decay": 0.3},
-            "pose_change": {"target": {"waist": -40}},
+            "task": {"type": "pose_change", "target": {"waist": -40}},
             "optimize": {"popsize": 4, "max_evaluations": 4, "min_evaluations": 0}}
 
 
 def huge_spec(k: int) -> dict:
-    return {"name": f"huge_{k}", "family": "bend", "task": "pose_change",
+    return {"name": f"huge_{k}", "family": "bend",
             "clip": {"preparation": 1.0, "duration": 10.0, "decay": 9.0},
-            "pose_change": {"target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
+            "task": {"type": "pose_change",
+                     "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
             "optimize": {"popsize": 60, "max_evaluations": 2400, "min_evaluations": 2400}}
 
 

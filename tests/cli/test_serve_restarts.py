@@ -26,9 +26,9 @@ ROOT = Path(__file__).resolve().parents[2]
 CMRT = ROOT / ".venv" / "bin" / "cmrt"
 #: ~0.15 s of CPU per candidate, 4 per generation, 3 generations + the final pair.
 SPEC = {
-    "name": "rolling", "family": "bend", "task": "pose_change",
+    "name": "rolling", "family": "bend",
     "clip": {"preparation": 0.5, "duration": 0.4, "decay": 1.2},
-    "pose_change": {"target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
+    "task": {"type": "pose_change", "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
     "optimize": {"popsize": 4, "max_evaluations": 12, "min_evaluations": 0},
 }
 SEED = 5
@@ -46,7 +46,7 @@ def _uninterrupted(tmp_path: Path):
     repo = open_repository(settings.database_url)
     spec = parse_spec(SPEC)
     job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
-                          family=spec.family_name, task=getattr(spec.task, "type", spec.task),
+                          family=spec.family_name, task=spec.task_type,
                           seed=SEED)
     ex = LocalPoolExecutor(settings, pool=SerialExecutor())  # the real objective
     JobDriver(repo, job.id, ex, settings).run()

@@ -142,7 +142,8 @@ def test_library_entry_is_never_worse_than_the_flat_spline(repo, config, duratio
 
     spec = bend_spec(duration=duration, popsize=4, max_evaluations=8)
     spec["clip"] = {"preparation": 0.5, "duration": duration, "decay": 0.6}
-    spec["pose_change"] = {"target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}}
+    spec["task"] = {"type": "pose_change",
+                    "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}}
     job = _job(repo, spec, seed=0)
     ex = LocalPoolExecutor(config, pool=SerialExecutor())  # the real simulation objective
     assert JobDriver(repo, job.id, ex, config).run() == STOPPED

@@ -26,16 +26,16 @@ REDIS = os.environ.get("CMRT_TEST_REDIS", "redis://127.0.0.1:6379")
 
 
 def _spec(name: str) -> dict:
-    return {"name": name, "family": "bend", "task": "pose_change",
+    return {"name": name, "family": "bend",
             "clip": {"preparation": 0.2, "duration": 0.2, "decay": 0.2},
-            "pose_change": {"target": {"waist": -30}},
+            "task": {"type": "pose_change", "target": {"waist": -30}},
             "optimize": {"popsize": 4, "max_evaluations": 4, "min_evaluations": 0}}
 
 
 def _job(repo, name):
     spec = parse_spec(_spec(name))
     return repo.create_job(spec.model_dump(mode="json"), name=spec.name,
-                           family=spec.family_name, task=getattr(spec.task, "type", spec.task),
+                           family=spec.family_name, task=spec.task_type,
                            seed=1)
 
 
