@@ -1,7 +1,7 @@
 """A small job next to a huge one, and cancelling the huge one mid-generation.
 
     .venv/bin/python bench/fair_share.py [--mode local|celery] [--repeat 3] [--workers 2]
-        [--serve "CMD"] [--json]
+        [--window N] [--serve "CMD"] [--json]
 
 Starts the service as a user would (`cmrt serve` on a free port; `--mode celery` also a
 `cmrt worker --concurrency N` and a private redis-server), on a fresh SQLite database, then
@@ -127,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="evaluation processes")
     ap.add_argument("--serve", default=None,
                     help="server command, {port} is replaced (default: cmrt serve --port {port})")
+    ap.add_argument("--window", type=int, default=None,
+                    help="Celery: CMRT_DISPATCH_WINDOW of the server (default: the setting's)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
 
@@ -136,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
     env.update(CMRT_DATABASE_URL=f"sqlite:///{scratch}/bench.db", CMRT_WORKERS=str(args.workers),
                CMRT_API_PORT=str(port), PYTHONUNBUFFERED="1")
+    if args.window is not None:
+        env["CMRT_DISPATCH_WINDOW"] = str(args.window)
     procs: list[subprocess.Popen] = []
     try:
         if args.mode == "celery":

@@ -25,7 +25,6 @@ Contracts:
 from __future__ import annotations
 
 import concurrent.futures as cf
-import contextlib
 import itertools
 import logging
 import multiprocessing
@@ -42,7 +41,12 @@ from typing import Any
 import numpy as np
 
 from optim.errors import EvaluationError
-from optim.executors import DEFAULT_START_METHOD, _exit_with_parent, evaluate_one
+from optim.executors import (
+    DEFAULT_START_METHOD,
+    _exit_with_parent,
+    evaluate_one,
+    kill_process_pool,
+)
 from optim.outcome import EvalOutcome
 
 log = logging.getLogger(__name__)
@@ -99,17 +103,8 @@ class _Slot:
         if restart:
             self._start()
             self.executor.submit(_ping)
-        if ex is None:
-            return
-        procs = list(getattr(ex, "_processes", {}).values())  # private, but the only handle
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.kill()
-        with contextlib.suppress(Exception):
-            ex.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.join(timeout=5.0)
+        if ex is not None:
+            kill_process_pool(ex)
 
 
 class FairPool:
