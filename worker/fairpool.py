@@ -42,7 +42,6 @@ import numpy as np
 
 from optim.errors import EvaluationError
 from optim.executors import (
-    DEFAULT_START_METHOD,
     _exit_with_parent,
     evaluate_one,
     kill_process_pool,
@@ -53,6 +52,11 @@ log = logging.getLogger(__name__)
 
 #: Longest wait between two `check()` calls while a batch runs, seconds.
 POLL_S = 0.1
+#: Start method of the slot processes: a fork server (started like "spawn", so no thread or
+#: ODE state of the server is inherited) that has imported `FORKSERVER_PRELOAD`.
+DEFAULT_SLOT_START_METHOD = "forkserver"
+FORKSERVER_PRELOAD = ("numpy", "optim.objective", "optim.spline", "sim.clip", "worker.fairpool",
+                      "worker.slotwarm")
 
 OnResult = Callable[[int, "EvalOutcome | EvaluationError"], None]
 
@@ -61,10 +65,12 @@ def _ping() -> int:
     return os.getpid()
 
 
-def _slot_init(parent_pid: int) -> None:
+def _slot_init() -> None:
+    """Slot-process initializer: ignore group signals; exit once the parent is gone. The
+    parent is the server (spawn) or the fork server, which exits when the server does."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _exit_with_parent(parent_pid)
+    _exit_with_parent(os.getppid())
 
 
 @dataclass(eq=False)
@@ -92,9 +98,8 @@ class _Slot:
         return self.executor.submit(evaluate_one, task.fn, task.params)
 
     def _start(self) -> None:
-        self.executor = cf.ProcessPoolExecutor(
-            max_workers=1, mp_context=self._ctx, initializer=_slot_init,
-            initargs=(os.getpid(),))
+        self.executor = cf.ProcessPoolExecutor(max_workers=1, mp_context=self._ctx,
+                                               initializer=_slot_init)
 
     def kill(self, *, restart: bool = False) -> None:
         """Kill the slot's process; with `restart` start its successor at once (its imports
@@ -111,10 +116,14 @@ class FairPool:
     """See the module docstring. Thread-safe: several job drivers share one pool."""
 
     def __init__(self, workers: int, *, time_limit: float | None = None,
-                 start_method: str = DEFAULT_START_METHOD) -> None:
+                 start_method: str = DEFAULT_SLOT_START_METHOD) -> None:
         if workers < 1:
             raise ValueError(f"FairPool needs at least 1 worker, got {workers}")
         ctx = multiprocessing.get_context(start_method)
+        if start_method == "forkserver":
+            # the fork server imports the simulation once; a killed slot's successor is a
+            # fork of it (milliseconds) instead of a fresh interpreter importing everything
+            ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
         self._slots = [_Slot(i, ctx) for i in range(int(workers))]
         self._queues: OrderedDict[str, deque[_Task]] = OrderedDict()
         self._lock = threading.RLock()
