@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import math
 import signal
 import sys
@@ -178,13 +179,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
     settings = get_settings()
     if args.workers is not None:
         settings = settings.model_copy(update={"workers": args.workers})
+    level = (args.log_level or settings.log_level).upper()
+    logging.basicConfig(level=level, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         app = create_app(settings)
     except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
         return _die(f"serve: {err}")
     uvicorn.run(app, host=args.host or settings.api_host, port=args.port or settings.api_port,
-                log_level=(args.log_level or settings.log_level).lower(),
-                timeout_graceful_shutdown=5)
+                log_level=level.lower(), timeout_graceful_shutdown=5)
     return 0
 
 

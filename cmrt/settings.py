@@ -31,7 +31,7 @@ CMRT_WORKER_CONCURRENCY   `cmrt worker` processes                     None (the 
 CMRT_LOG_LEVEL            log level of `cmrt serve` / `cmrt worker`   INFO
 CMRT_MAX_JOB_SIM_SECONDS  ceiling of a job's budget (simulated s:     50000
                           evaluations x clip length; worker.admission)
-CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 8
+CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 4
                           has in the queue at once (fair share)
 ========================  ==========================================  =========================
 
@@ -98,7 +98,7 @@ class Settings(BaseSettings):
     #: Celery: the most evaluations of one job sent and not yet resolved at any time, so jobs
     #: share the queue (a small job waits behind at most this many of a large one's); about
     #: twice the evaluation processes keeps them all busy between the driver's polls.
-    dispatch_window: Annotated[int, Field(ge=1, le=10_000)] = 8
+    dispatch_window: Annotated[int, Field(ge=1, le=10_000)] = 4
     #: Log level of `cmrt serve` and `cmrt worker`.
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"] = "INFO"
 
