@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from sim.tasks.base import Task, TaskConfig
 from sim.tasks.pose_change import PoseChangeConfig
+from sim.tasks.punch import PunchConfig
 from sim.tasks.push import PushConfig
 from sim.tasks.quiet_stance import QuietStanceConfig
 from sim.tasks.sequence import SequenceConfig
@@ -17,6 +18,7 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "push": PushConfig,
     "pose_change": PoseChangeConfig,
     "sequence": SequenceConfig,
+    "punch": PunchConfig,
 }
 
 __all__ = ["TASK_TYPES", "Task", "TaskConfig"]
