@@ -22,14 +22,15 @@ from fastapi import FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse
 
+from cmrt.settings import Settings, get_settings
 from optim.errors import BasisError, InterpolationError
 from service import schemas
 from sim.errors import SpecError
 from sim.spec import parse_spec
 from store import NotFound, Repository, open_repository
 from store.records import JOB_STATUSES
-from worker.config import WorkerConfig
-from worker.executors import CeleryExecutor, GenerationExecutor, LocalPoolExecutor
+from worker import admission
+from worker.executors import CeleryExecutor, GenerationExecutor, make_generation_executor
 from worker.library import build_library_basis, interpolate_library
 from worker.runner import JobRunner
 
@@ -135,6 +136,7 @@ def _cmrt_out(r: Any, request: Request, full: bool = False) -> dict[str, Any]:
         "character": r.character,
         "objective": r.objective,
         "objective_without": r.objective_without,
+        "winner": r.winner,
         "fell": r.fell,
         "job_id": r.job_id,
         "created_at": r.created_at,
@@ -170,28 +172,18 @@ def _library_query(request: Request) -> dict[str, float]:
     return params
 
 
-def make_executor(config: WorkerConfig) -> GenerationExecutor:
-    if config.distributed:
-        from worker.celery_app import make_celery
-
-        return CeleryExecutor(config, make_celery(config.broker_url, config.result_backend,
-                                                  config))
-    return LocalPoolExecutor(config)
-
-
 def create_app(
-    settings: Any | None = None,
+    settings: Settings | None = None,
     *,
     repo: Repository | None = None,
     executor: GenerationExecutor | None = None,
-    config: WorkerConfig | None = None,
     run_drivers: bool = True,
 ) -> FastAPI:
     """Build the app. Defaults: settings from the environment (`cmrt.settings.get_settings`),
     repository migrated to the newest schema, executor chosen by the broker setting."""
-    config = config or WorkerConfig(settings)
+    config = settings or get_settings()
     repo = repo or open_repository(config.database_url)
-    executor = executor or make_executor(config)
+    executor = executor or make_generation_executor(config)
     runner = JobRunner(repo, executor, config)
     max_body = config.max_body_bytes
 
@@ -275,13 +267,18 @@ def create_app(
                 b.check_spec(spec)
             except BasisError as err:
                 raise ApiError(422, f"basis: {err}") from None
+        try:  # the job's budget against the server's ceiling (worker.admission)
+            budget = admission.check(spec, config, dimension=None if basis is None else b.k)
+        except admission.BudgetExceeded as err:
+            raise ApiError(422, str(err)) from None
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task_type,
                               seed=0 if seed is None else seed, basis_id=basis)
         if run_drivers:
             runner.submit(job.id)
         url = str(request.url_for("get_job", job_id=job.id))
-        return JSONResponse({"id": job.id, "url": url, "status": job.status},
+        return JSONResponse({"id": job.id, "url": url, "status": job.status,
+                             "budget": budget.to_dict()},
                             status_code=202, headers={"Location": url})
 
     @app.get("/jobs", response_model=schemas.JobPage, tags=["jobs"], summary="List jobs")
