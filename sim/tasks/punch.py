@@ -111,7 +111,11 @@ class PunchTask(Task):
     events = True
 
     def __init__(self, spec: Any, character: Any):
+        # Here, not at the module's top: parsing a spec must not import ODE (sim/__init__.py).
+        from sim.physics import PROP_CHARACTER
+
         super().__init__(spec, character)
+        self._hand_kind = PROP_CHARACTER
         cfg: PunchConfig = spec.task
         self.config = cfg
         support_centre = 0.5 * (float(character.heel0[:, 0].min())
@@ -141,20 +145,18 @@ class PunchTask(Task):
     def after_step(self, physics: Any, t: float) -> None:
         if not self.window[0] <= t <= self.window[1] + 1e-9:
             return
-        for c in physics.prop_contacts:
-            _joint, kind, a, _b, point = c
-            if kind != "prop-character" or a != BAG:
+        for c in physics.contact_list():
+            if c.kind != self._hand_kind or c.a != BAG:
                 continue
-            hand = self._hand_at(physics, point)
+            hand = self.hand_at(physics, c.point)
             if hand is None:
                 continue
-            f = _joint.getFeedback()[0]
-            self.peak_force = max(self.peak_force, math.hypot(f[0], f[1]))
+            self.peak_force = max(self.peak_force, math.hypot(*c.force))
             if self.hit_time is None:
                 self.hit_time, self.hit_hand = t, hand
 
-    def _hand_at(self, physics: Any, point: tuple[float, float]) -> str | None:
-        """The hand whose sphere surface the contact point lies on, if any."""
+    def hand_at(self, physics: Any, point: tuple[float, float]) -> str | None:
+        """The hand whose sphere's surface the contact point lies on, if any."""
         for name, radius in self.hands:
             gx, gy, _ = physics.geoms[name].getPosition()
             if math.hypot(point[0] - gx, point[1] - gy) <= radius + HAND_CONTACT_TOLERANCE:

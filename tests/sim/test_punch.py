@@ -160,7 +160,7 @@ def test_a_hand_bag_contact_is_a_prop_character_contact(punched):
     kinds = {(kind, a) for _j, kind, a, _b, _p in ph.prop_contacts}
     assert (PROP_CHARACTER, BAG) in kinds
     pts = [p for _j, kind, _a, _b, p in ph.prop_contacts if kind == PROP_CHARACTER]
-    assert any(sim.task._hand_at(ph, p) is not None for p in pts)
+    assert any(sim.task.hand_at(ph, p) is not None for p in pts)
     ph.clear_contacts()
 
 
