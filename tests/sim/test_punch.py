@@ -180,3 +180,15 @@ def test_same_inputs_same_clip(punched):
     assert first.objective == second.objective
     assert first.fall_time == second.fall_time and first.task_success == second.task_success
     assert first.frames.poses == second.frames.poses
+
+
+def test_parsing_a_punch_spec_does_not_import_ode():
+    """sim/__init__.py keeps ODE out of spec parsing (the service parses specs it never runs);
+    the punch task imports the physics only when it is built."""
+    import subprocess
+    import sys
+
+    code = ("import sys, yaml; from sim.spec import parse_spec; "
+            f"parse_spec(yaml.safe_load(open({str(EXAMPLES / 'punch.yaml')!r}))); "
+            "sys.exit(1 if 'ode' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
