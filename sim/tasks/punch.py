@@ -1,9 +1,10 @@
 """`punch`: a punching bag hanging from a fixed anchor, hit by a fast punch (paper 6.1.4).
 
 The arm motion is reference pose changes the balance controller tracks: the arms come up to a
-`guard` pose in the preparation window, then each entry of `punches` is a fast pose change
-(start and duration default to the task window; two entries make a double punch), and an
-optional `retract` pose change follows. The bag is a capsule prop (radius `radius`, cylinder
+guard in the preparation window (`guard`: one or more timed pose changes), then each entry of
+`punches` is a fast pose change starting `delay` s into the task window (its duration defaults
+to the window's; two entries make a double punch), and an optional `retract` pose change
+follows the task window. The bag is a capsule prop (radius `radius`, cylinder
 length `length`, mass `mass`) hanging by a rigid rod (`links: 0`) or a chain of `links` bodies
 from an anchor `rope` metres above its centre; the bag's reaction reaches the character only
 through ODE contacts with the character's contact geoms (hands, forearms): the reactive
@@ -32,7 +33,7 @@ from sim.trajectory import MotionDef
 
 BAG = "bag"
 MAX_BAG_MASS_KG = 500.0
-MAX_PUNCHES = 8
+MAX_MOTIONS = 8  # guard steps, punches
 #: A contact point within this distance (m) of a hand sphere's surface is the hand's.
 HAND_CONTACT_TOLERANCE = 0.005
 
@@ -62,11 +63,11 @@ class PunchConfig(TaskConfig):
     rope, links}` (module docstring)."""
 
     type: Literal["punch"] = "punch"
-    guard: Annotated[list[Guard], Field(min_length=1, max_length=MAX_PUNCHES)]
-    punches: Annotated[list[Strike], Field(min_length=1, max_length=MAX_PUNCHES)]
+    guard: Annotated[list[Guard], Field(min_length=1, max_length=MAX_MOTIONS)]
+    punches: Annotated[list[Strike], Field(min_length=1, max_length=MAX_MOTIONS)]
     retract: Strike | None = None
     mass: Annotated[float, Field(gt=0.0, le=MAX_BAG_MASS_KG)] = 30.0
-    distance: Annotated[float, Field(gt=0.0, le=5.0)] = 0.55
+    distance: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
     height: Annotated[float, Field(gt=0.3, le=3.0)] = 1.35
     radius: Annotated[float, Field(gt=0.02, le=1.0)] = 0.18
     length: Annotated[float, Field(gt=0.0, le=3.0)] = 0.6
@@ -89,6 +90,8 @@ class PunchConfig(TaskConfig):
     def check(self, spec: Any, character: Any) -> None:
         if not character.hands:
             raise ValueError("task: a punch needs a character whose file lists `hands`")
+        if any(character.geom(h).shape != "sphere" for h in character.hands):
+            raise ValueError("task: a punch needs the character's hand geoms to be spheres")
         for where, start, dur, target in self.motion_windows(spec.clip):
             check_pose(target, character, f"{where}.target")
             if start + dur > spec.clip.length + 1e-9:
