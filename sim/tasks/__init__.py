@@ -7,6 +7,7 @@ task type is a module plus one line here.
 from __future__ import annotations
 
 from sim.tasks.base import Task, TaskConfig
+from sim.tasks.domino import DominoConfig
 from sim.tasks.pose_change import PoseChangeConfig
 from sim.tasks.push import PushConfig
 from sim.tasks.quiet_stance import QuietStanceConfig
@@ -17,6 +18,7 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "push": PushConfig,
     "pose_change": PoseChangeConfig,
     "sequence": SequenceConfig,
+    "domino": DominoConfig,
 }
 
 __all__ = ["TASK_TYPES", "Task", "TaskConfig"]
