@@ -3,7 +3,7 @@
     .venv/bin/python bench/domino_family.py [--out results/domino_family] [--workers 2]
         [--seed 1] [--masses 30 40 50 60 70 80 90 110 130 140 150]
         [--leave-out 30 60 90 110 150] [--interpolate 70 130] [--k 3]
-        [--min-evaluations 200] [--window 20] [--max-evaluations 500] [--json]
+        [--min-evaluations 150] [--window 10] [--max-evaluations 300] [--json]
 
 Every member is `examples/domino.yaml` (same scene, push, gain schedule and CMRT settings) with
 the block's `mass` changed. The optimisations run without the early-exit threshold (to the
@@ -96,9 +96,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--leave-out", type=float, nargs="*", default=[30, 60, 90, 110, 150])
     p.add_argument("--interpolate", type=float, nargs="*", default=[70, 130])
     p.add_argument("--k", type=int, default=3)
-    p.add_argument("--min-evaluations", type=int, default=200)
-    p.add_argument("--window", type=int, default=20)
-    p.add_argument("--max-evaluations", type=int, default=500)
+    p.add_argument("--min-evaluations", type=int, default=150)
+    p.add_argument("--window", type=int, default=10)
+    p.add_argument("--max-evaluations", type=int, default=300)
     p.add_argument("--template", type=Path, default=TEMPLATE)
     p.add_argument("--skip-full", action="store_true",
                    help="do not optimise missing members: use only those saved in --out")
