@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from sim.tasks.base import Task, TaskConfig
 from sim.tasks.catch import CatchConfig
+from sim.tasks.domino import DominoConfig
 from sim.tasks.pose_change import PoseChangeConfig
 from sim.tasks.punch import PunchConfig
 from sim.tasks.push import PushConfig
@@ -21,6 +22,7 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "sequence": SequenceConfig,
     "catch": CatchConfig,
     "punch": PunchConfig,
+    "domino": DominoConfig,
 }
 
 __all__ = ["TASK_TYPES", "Task", "TaskConfig"]
