@@ -157,14 +157,20 @@ def cmd_interpolate(args: argparse.Namespace) -> int:
 
 # ---- bench ------------------------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
-    from sim.bench import run_bench
+    from sim import load_spec
+    from sim.bench import run_bench, run_task_bench
 
-    report = run_bench(seconds=args.seconds)
+    specs = [load_spec(p) for p in args.specs]  # parse them all before measuring anything
+    reports = [run_bench(seconds=args.seconds)]
+    reports += [run_task_bench(spec, seconds=args.seconds) for spec in specs]
     if args.json:
-        print(json.dumps(report))
+        print(json.dumps(reports[0] if not specs else reports))
     else:
-        for k, v in report.items():
-            print(f"{k:>34}: {_fmt(v)}")
+        for i, report in enumerate(reports):
+            if i:
+                print()
+            for k, v in report.items():
+                print(f"{k:>34}: {_fmt(v)}")
     return 0
 
 
@@ -261,6 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
     o.set_defaults(func=cmd_optimize)
 
     b = sub.add_parser("bench", help="CPU seconds per simulated second, controller vs raw ODE")
+    b.add_argument("specs", nargs="*", metavar="SPEC",
+                   help="also measure these task specs' worlds (props included) and clips")
     b.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per case")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
