@@ -16,10 +16,10 @@ import logging
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 
 from cmrt.settings import Settings, get_settings
-from service.deps import Services
+from service.deps import Services, no_nul
 from service.errors import install_error_handlers
 from service.routers import bases, cmrts, health, jobs, pages
 from store import Repository, open_repository
@@ -71,6 +71,7 @@ def create_app(
         description="Learns centre-of-mass reference trajectories (CMRTs) by CMA-ES over "
                     "physics simulations, and serves them from a library. See docs/service.md.",
         lifespan=lifespan,
+        dependencies=[Depends(no_nul)],
     )
     app.state.services = svc
     install_error_handlers(app)

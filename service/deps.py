@@ -61,6 +61,21 @@ def url_for(request: Request, name: str, **params: Any) -> str:
     return str(request.url_for(name, **params))
 
 
+#: Largest `offset` of a listing and `after` of a generation poll: far below what an SQL
+#: integer holds (2^63 - 1), far above any real listing.
+MAX_OFFSET = 10**9
+
+
+def no_nul(request: Request) -> None:
+    """Refuse a NUL character in the path or the query (PostgreSQL cannot store or compare it;
+    no id, family or parameter name contains one)."""
+    if "\x00" in request.url.path:
+        raise ApiError(422, "path: the NUL character is not allowed")
+    for k, v in request.query_params.multi_items():
+        if "\x00" in k or "\x00" in v:
+            raise ApiError(422, f"{k.replace(chr(0), '')}: the NUL character is not allowed")
+
+
 #: Query keys of /cmrts and /cmrts/interpolate that are not task parameters.
 RESERVED_QUERY_KEYS = {"family", "tolerance", "limit", "offset", "extrapolate", "along"}
 #: Most task parameters accepted in one library query.

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Query, Request
 
 from optim.errors import InterpolationError
 from service import schemas
-from service.deps import LibraryParams, RepoDep, url_for
+from service.deps import MAX_OFFSET, LibraryParams, RepoDep, url_for
 from service.errors import ApiError
 from service.views import cmrt_out
 from worker.library import interpolate_library
@@ -22,10 +22,11 @@ def find_cmrts(
     repo: RepoDep,
     params: LibraryParams,
     family: Annotated[str | None, Query(max_length=100)] = None,
-    tolerance: Annotated[float | None, Query(ge=0, description="nearest within +-tolerance;"
-                                             " without it: exact match")] = None,
+    tolerance: Annotated[float | None, Query(
+        ge=0, allow_inf_nan=False,
+        description="nearest within +-tolerance; without it: exact match")] = None,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
 ) -> dict[str, Any]:
     """`GET /cmrts?family=bend&duration=0.4[&tolerance=0.05]`: any other query key is a
     task parameter (e.g. duration, force). Nearest first when a tolerance is given."""

@@ -10,7 +10,7 @@ from fastapi.responses import JSONResponse
 from optim.errors import BasisError
 from service import schemas
 from service.body import read_json
-from service.deps import RepoDep, ServicesDep, url_for
+from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
 from service.errors import ApiError
 from service.views import generation_out, job_cmrt_id, job_out
 from sim.errors import SpecError
@@ -20,8 +20,6 @@ from store.records import JOB_STATUSES
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
-#: Largest `offset` of a listing (an SQL integer holds much more; no listing is this long).
-MAX_OFFSET = 10**9
 #: Largest seed of a job (CMA-ES takes a 31-bit seed).
 MAX_SEED = 2**31 - 1
 _ENVELOPE_KEYS = {"spec", "seed", "basis"}
@@ -96,7 +94,7 @@ def list_jobs(
     status: Annotated[str | None, Query(description="one of " + ", ".join(JOB_STATUSES))] = None,
     family: Annotated[str | None, Query(max_length=100)] = None,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
 ) -> dict[str, Any]:
     if status is not None and status not in JOB_STATUSES:
         raise ApiError(422, f"status: {status!r} is not one of {', '.join(JOB_STATUSES)}")
@@ -120,7 +118,8 @@ def get_job(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
 def job_generations(
     job_id: str,
     repo: RepoDep,
-    after: Annotated[int, Query(ge=-1)] = -1,
+    after: Annotated[int, Query(ge=-1, le=MAX_OFFSET,
+                                description="iteration; -1 for all")] = -1,
     limit: Annotated[int, Query(ge=1, le=1000)] = 1000,
 ) -> dict[str, Any]:
     job = repo.get_job(job_id)
