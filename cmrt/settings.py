@@ -18,6 +18,9 @@ CMRT_LEASE_SECONDS        driver lease time-to-live, seconds          30
 CMRT_API_HOST             HTTP bind address                           127.0.0.1
 CMRT_API_PORT             HTTP port                                   8000
 CMRT_MAX_BODY_BYTES       largest accepted request body               1000000
+CMRT_API_TOKEN            bearer token the API requires; unset: open  None
+CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
+CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
 ========================  ==========================================  =========================
 
 The SQLite file's folder is created on demand by `store.db.make_engine` (or
@@ -30,7 +33,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import Field, model_validator
+from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 DEFAULT_DATA_DIR = Path("./cmrt-data")
@@ -57,6 +60,18 @@ class Settings(BaseSettings):
     api_host: str = "127.0.0.1"
     api_port: Annotated[int, Field(ge=1, le=65535)] = 8000
     max_body_bytes: Annotated[int, Field(ge=1)] = 1_000_000
+    #: Bearer token of the HTTP API (`Authorization: Bearer <token>`); None: no authentication.
+    api_token: SecretStr | None = None
+    #: With a token: True leaves the read-only endpoints open to everyone, False closes them too.
+    api_public_reads: bool = False
+    #: Base of the absolute URLs the API returns (e.g. https://cmrt.example); None: the API
+    #: returns paths (`/jobs/<id>`). Never taken from the request's Host header.
+    public_url: Annotated[str | None, Field(pattern=r"^https?://[^\s/?#]+(/[^\s?#]*)?$")] = None
+
+    @field_validator("api_token", "public_url", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, v: object) -> object:
+        return None if v == "" else v
 
     @model_validator(mode="after")
     def _default_database(self) -> Settings:

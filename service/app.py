@@ -14,14 +14,18 @@ from __future__ import annotations
 
 import logging
 from contextlib import asynccontextmanager
+from importlib import resources
 from typing import Any
 
 from fastapi import Depends, FastAPI
+from fastapi.staticfiles import StaticFiles
 
 from cmrt.settings import Settings, get_settings
 from service.deps import Services, no_nul
 from service.errors import install_error_handlers
+from service.openapi import install_openapi
 from service.routers import bases, cmrts, health, jobs, pages
+from service.security import HttpEdge
 from store import Repository, open_repository
 from worker.config import WorkerConfig
 from worker.executors import CeleryExecutor, GenerationExecutor, LocalPoolExecutor
@@ -72,9 +76,15 @@ def create_app(
                     "physics simulations, and serves them from a library. See docs/service.md.",
         lifespan=lifespan,
         dependencies=[Depends(no_nul)],
+        docs_url=None,  # service.routers.pages serves /docs from the project's own assets
+        redoc_url=None,
     )
     app.state.services = svc
     install_error_handlers(app)
+    install_openapi(app, settings)
     for module in (jobs, cmrts, bases, health, pages):
         app.include_router(module.router)
+    static = resources.files("service").joinpath("static")
+    app.mount("/static", StaticFiles(directory=str(static)), name="static")
+    app.add_middleware(HttpEdge, app=app, settings=settings)
     return app

@@ -81,9 +81,20 @@ def parse_json(body: bytes, max_depth: int = MAX_JSON_DEPTH) -> Any:
     return data
 
 
+def require_json_content_type(request: Request) -> None:
+    """415 unless the body is declared `application/json` (a cross-origin page can send
+    `text/plain` without a CORS preflight, never `application/json`)."""
+    raw = request.headers.get("content-type")
+    media = (raw or "").split(";", 1)[0].strip().lower()
+    if media != "application/json":
+        got = f"{raw!r}" if raw else "none"
+        raise ApiError(415, f"content-type: must be application/json, got {got}")
+
+
 async def read_json(request: Request, limit: int, max_depth: int = MAX_JSON_DEPTH) -> Any:
-    """The request body as JSON, refusing bodies over `limit` bytes (413) and the rest as in
-    `parse_json`."""
+    """The request body as JSON: 415 unless declared application/json, 413 over `limit` bytes,
+    the rest as in `parse_json`."""
+    require_json_content_type(request)
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > limit:
         raise ApiError(413, f"body: {declared} bytes exceed the limit of {limit} bytes")

@@ -57,8 +57,12 @@ ServicesDep = Annotated[Services, Depends(services)]
 
 
 def url_for(request: Request, name: str, **params: Any) -> str:
-    """The URL of a route (the one place URLs are built)."""
-    return str(request.url_for(name, **params))
+    """The URL of a route: a path (`/jobs/<id>`) unless `CMRT_PUBLIC_URL` sets the base.
+
+    Never built from the request's Host header, which the client controls."""
+    path = str(request.app.url_path_for(name, **params))
+    base = request.app.state.services.settings.public_url
+    return f"{base.rstrip('/')}{path}" if base else path
 
 
 #: Largest `offset` of a listing and `after` of a generation poll: far below what an SQL
@@ -112,3 +116,20 @@ def library_query(request: Request) -> dict[str, float]:
 
 
 LibraryParams = Annotated[dict[str, float], Depends(library_query)]
+
+
+def task_parameters_doc(required: bool) -> dict[str, Any]:
+    """`openapi_extra=` documenting the free-form task-parameter query keys that
+    `library_query` reads (`?duration=0.4&force=250`)."""
+    return {"parameters": [{
+        "name": "task_parameters", "in": "query", "required": required,
+        "style": "form", "explode": True,
+        "description": "Any other query key is a task parameter with a finite number, e.g. "
+                       "`duration=0.4`, `force=250`.",
+        "schema": {"type": "object", "minProperties": 1 if required else 0,
+                   "maxProperties": MAX_QUERY_PARAMS,
+                   "propertyNames": {"minLength": 1, "maxLength": MAX_PARAM_NAME,
+                                     "pattern": "^[A-Za-z_][A-Za-z0-9_]*$",
+                                     "not": {"enum": sorted(RESERVED_QUERY_KEYS)}},
+                   "additionalProperties": {"type": "number"}},
+    }]}

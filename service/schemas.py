@@ -10,6 +10,22 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from sim.spec import TaskSpec
 
+__all__ = ["TaskSpec"]
+
+
+#: The example body of `POST /jobs` in the OpenAPI document (examples/fast_bend.yaml's task;
+#: tests/service checks that it is accepted).
+JOB_EXAMPLE: dict[str, Any] = {
+    "name": "fast_bend",
+    "family": "bend",
+    "task": "pose_change",
+    "clip": {"preparation": 1.0, "duration": 0.4, "decay": 1.2},
+    "pose_change": {"target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
+    "optimize": {"threshold": 1.1, "max_evaluations": 700},
+}
+#: The example body of `POST /bases`.
+BASIS_EXAMPLE: dict[str, Any] = {"family": "bend", "k": 2}
+
 
 class Problem(BaseModel):
     detail: str = Field(description="what is wrong, naming the field and the rule")

@@ -14,6 +14,7 @@ from service import schemas
 from service.body import read_json
 from service.deps import RepoDep, SettingsDep
 from service.errors import ApiError, validation_message
+from service.openapi import error_responses, json_body
 from service.views import basis_out
 from worker.library import build_library_basis
 
@@ -21,7 +22,8 @@ router = APIRouter(prefix="/bases", tags=["library"])
 
 
 @router.post("", status_code=201, summary="Build a PCA basis",
-             responses={400: {"model": schemas.Problem}, 422: {"model": schemas.Problem}})
+             openapi_extra=json_body(schemas.BasisRequest, example=schemas.BASIS_EXAMPLE),
+             responses=error_responses(400, 413, 415, 422))
 async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -> JSONResponse:
     """Body `{"family": "bend", "k": 3}`: PCA of the family's library CMRTs."""
     data = await read_json(request, settings.max_body_bytes)
@@ -38,6 +40,6 @@ async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -
                         headers={"Location": body["url"]})
 
 
-@router.get("/{basis_id}", summary="One PCA basis", responses={404: {"model": schemas.Problem}})
+@router.get("/{basis_id}", summary="One PCA basis", responses=error_responses(404))
 def get_basis(basis_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     return basis_out(repo.get_basis(basis_id), request)

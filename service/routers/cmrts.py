@@ -8,15 +8,17 @@ from fastapi import APIRouter, Query, Request
 
 from optim.errors import InterpolationError
 from service import schemas
-from service.deps import MAX_OFFSET, LibraryParams, RepoDep, url_for
+from service.deps import MAX_OFFSET, LibraryParams, RepoDep, task_parameters_doc, url_for
 from service.errors import ApiError
+from service.openapi import error_responses
 from service.views import cmrt_out
 from worker.library import interpolate_library
 
 router = APIRouter(prefix="/cmrts", tags=["library"])
 
 
-@router.get("", summary="Find CMRTs by task parameters", response_model=schemas.CmrtPage)
+@router.get("", summary="Find CMRTs by task parameters", response_model=schemas.CmrtPage,
+            responses=error_responses(422), openapi_extra=task_parameters_doc(False))
 def find_cmrts(
     request: Request,
     repo: RepoDep,
@@ -45,7 +47,7 @@ def find_cmrts(
 
 
 @router.get("/interpolate", summary="Interpolate a CMRT",
-            responses={422: {"model": schemas.Problem}})
+            responses=error_responses(422), openapi_extra=task_parameters_doc(True))
 def interpolate_cmrt(
     request: Request,
     repo: RepoDep,
@@ -79,6 +81,6 @@ def interpolate_cmrt(
 
 
 @router.get("/{cmrt_id}", summary="One CMRT with its curve",
-            responses={404: {"model": schemas.Problem}})
+            responses=error_responses(404))
 def get_cmrt(cmrt_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     return cmrt_out(repo.get_cmrt(cmrt_id), request, full=True)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
@@ -12,6 +12,7 @@ from service import schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
 from service.errors import ApiError
+from service.openapi import error_responses, json_body
 from service.views import generation_out, job_cmrt_id, job_out
 from sim.errors import SpecError
 from sim.spec import parse_spec
@@ -23,6 +24,7 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 #: Largest seed of a job (CMA-ES takes a 31-bit seed).
 MAX_SEED = 2**31 - 1
 _ENVELOPE_KEYS = {"spec", "seed", "basis"}
+JobStatus = Literal[JOB_STATUSES]  # type: ignore[valid-type]
 
 
 def _envelope(data: Any, seed: int | None, basis: str | None) -> tuple[Any, int | None, str | None]:
@@ -57,10 +59,10 @@ def _check_basis(repo: Any, basis: str, spec: Any) -> None:
 
 @router.post("", status_code=202, response_model=schemas.JobAccepted,
              summary="Submit a task spec for optimisation",
-             openapi_extra={"requestBody": {"required": True, "content": {"application/json": {
-                 "schema": schemas.JobRequest.model_json_schema()}}}},
-             responses={400: {"model": schemas.Problem}, 413: {"model": schemas.Problem},
-                        422: {"model": schemas.Problem}})
+             openapi_extra=json_body(
+                 schemas.TaskSpec, schemas.JobRequest, example=schemas.JOB_EXAMPLE,
+                 description="a task spec, or the envelope `{spec, seed, basis}`"),
+             responses=error_responses(400, 413, 415, 422))
 async def submit_job(
     request: Request,
     svc: ServicesDep,
@@ -87,24 +89,23 @@ async def submit_job(
                         status_code=202, headers={"Location": url})
 
 
-@router.get("", response_model=schemas.JobPage, summary="List jobs")
+@router.get("", response_model=schemas.JobPage, summary="List jobs",
+            responses=error_responses(422))
 def list_jobs(
     request: Request,
     repo: RepoDep,
-    status: Annotated[str | None, Query(description="one of " + ", ".join(JOB_STATUSES))] = None,
+    status: JobStatus | None = None,
     family: Annotated[str | None, Query(max_length=100)] = None,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
 ) -> dict[str, Any]:
-    if status is not None and status not in JOB_STATUSES:
-        raise ApiError(422, f"status: {status!r} is not one of {', '.join(JOB_STATUSES)}")
     items, total = repo.list_jobs(status=status, family=family, limit=limit, offset=offset)
     return {"items": [job_out(j, request) for j in items], "total": total,
             "limit": limit, "offset": offset}
 
 
 @router.get("/{job_id}", response_model=schemas.JobOut, summary="One job",
-            responses={404: {"model": schemas.Problem}})
+            responses=error_responses(404))
 def get_job(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     job = repo.get_job(job_id)
     out = job_out(job, request, job_cmrt_id(repo, job))
@@ -114,7 +115,7 @@ def get_job(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
 
 @router.get("/{job_id}/generations", response_model=schemas.GenerationPage,
             summary="Generations after N (incremental polling)",
-            responses={404: {"model": schemas.Problem}})
+            responses=error_responses(404))
 def job_generations(
     job_id: str,
     repo: RepoDep,
@@ -131,7 +132,7 @@ def job_generations(
 
 @router.get("/{job_id}/evaluations",
             summary="Evaluation bookkeeping per generation (counts and attempts)",
-            responses={404: {"model": schemas.Problem}})
+            responses=error_responses(404))
 def job_evaluations(job_id: str, repo: RepoDep) -> dict[str, Any]:
     job = repo.get_job(job_id)
     out = []
@@ -152,7 +153,7 @@ def job_evaluations(job_id: str, repo: RepoDep) -> dict[str, Any]:
 
 
 @router.post("/{job_id}/cancel", status_code=202, summary="Cancel a job",
-             responses={404: {"model": schemas.Problem}, 409: {"model": schemas.Problem}})
+             responses=error_responses(404, 409))
 def cancel_job(job_id: str, request: Request, repo: RepoDep) -> JSONResponse:
     job = repo.get_job(job_id)
     if job.terminal:

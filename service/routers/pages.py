@@ -13,10 +13,20 @@ from service.deps import url_for
 router = APIRouter(tags=["operations"])
 
 
+def _page(name: str) -> HTMLResponse:
+    return HTMLResponse(resources.files("service").joinpath("static", name).read_text())
+
+
 @router.get("/dashboard", response_class=HTMLResponse, summary="Convergence dashboard (HTML)")
 def dashboard() -> HTMLResponse:
-    html = resources.files("service").joinpath("static/dashboard.html").read_text()
-    return HTMLResponse(html)
+    return _page("dashboard.html")
+
+
+@router.get("/docs", response_class=HTMLResponse, include_in_schema=False)
+def docs() -> HTMLResponse:
+    """Swagger UI on /openapi.json, its assets served from service/static/swagger-ui (no CDN:
+    it works offline)."""
+    return _page("docs.html")
 
 
 @router.get("/", include_in_schema=False)
