@@ -107,9 +107,9 @@ def _spec(clip: float) -> dict:
     return {
         "name": "bench_bend",
         "family": "bench",
-        "task": "pose_change",
         "clip": {"preparation": prep, "duration": dur, "decay": round(clip - prep - dur, 3)},
-        "pose_change": {"target": {"waist": -30, "shoulder_r": 30, "shoulder_l": 30}},
+        "task": {"type": "pose_change",
+                 "target": {"waist": -30, "shoulder_r": 30, "shoulder_l": 30}},
     }
 
 
@@ -266,7 +266,7 @@ def store_path(spec, n: int, scratch: _Scratch) -> dict:
     repo = open_worker_repository(scratch.db_url)  # as in a Celery worker process
     try:
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
-                              family=spec.family_name, task=spec.task, seed=0)
+                              family=spec.family_name, task=spec.task_type, seed=0)
         repo.set_job_status(job.id, "running")
         cache = SpecCache(lambda _spec: (lambda _x: 1.0))
         pop, times, cpu = 16, [], 0.0

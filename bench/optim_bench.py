@@ -30,7 +30,7 @@ SPLINE_CALLS = 100_000
 
 
 def bench_numerics() -> dict[str, float]:
-    spec = parse_spec({"name": "b", "task": "quiet_stance", "clip": {"duration": 0.4}})
+    spec = parse_spec({"name": "b", "task": {"type": "quiet_stance"}, "clip": {"duration": 0.4}})
     s = decode(spec, np.random.default_rng(0).random(spec.cmrt_dimension))
     per_call = timeit.timeit(lambda: s(1.234), number=SPLINE_CALLS) / SPLINE_CALLS
     opt = CmaOptimizer(8, seed=1, rules=StopRules(max_evaluations=10**6))

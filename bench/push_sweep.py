@@ -14,9 +14,10 @@ from sim.spec import parse_spec
 
 
 def survives(force: float, direction: str) -> bool:
-    spec = parse_spec({"name": "push_sweep", "task": "push",
+    spec = parse_spec({"name": "push_sweep",
                        "clip": {"preparation": 1.0, "duration": 0.2, "decay": 1.8},
-                       "push": {"force": force, "direction": direction, "body": "trunk"}})
+                       "task": {"type": "push", "force": force, "direction": direction,
+                                "body": "trunk"}})
     return not Simulator(spec).run().fell
 
 

@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sim.clip import Simulator  # noqa: E402
 from sim.dynamics import GRAVITY, momentum_bias  # noqa: E402
+from sim.physics import DT  # noqa: E402
 from sim.spec import load_spec  # noqa: E402
-from sim.world import DT  # noqa: E402
 
 
 def diagnose(spec_path: str, cmrt_path: str | None) -> tuple[list[dict], float]:

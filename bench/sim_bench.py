@@ -29,12 +29,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sim.character import ROOT_DOF  # noqa: E402
 from sim.clip import Simulator  # noqa: E402
 from sim.dynamics import inverse_dynamics, step_model  # noqa: E402
+from sim.physics import DT  # noqa: E402
 from sim.spec import parse_spec  # noqa: E402
-from sim.world import DT  # noqa: E402
 
 
 def quiet_spec(seconds: float):
-    return parse_spec({"name": "bench_quiet", "task": "quiet_stance",
+    return parse_spec({"name": "bench_quiet", "task": {"type": "quiet_stance"},
                        "clip": {"preparation": 0.0, "duration": seconds, "decay": 0.0}})
 
 

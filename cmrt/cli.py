@@ -39,7 +39,7 @@ def _sequence_cmrt(spec: Any, base: Path) -> Any:
     from optim.superpose import superpose
 
     parts = []
-    for m in spec.motions or []:
+    for m in getattr(spec.task, "motions", None) or []:
         if m.cmrt is None:
             continue
         path = Path(m.cmrt)
@@ -61,7 +61,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         res = OptimizationResult.load(args.cmrt)
         cmrt = res.spline()
         source = args.cmrt
-    elif not args.zero and spec.task == "sequence":
+    elif not args.zero and spec.task_type == "sequence":
         cmrt = _sequence_cmrt(spec, Path(args.spec).parent)
         source = "superposed" if cmrt is not None else "none"
     sim = Simulator(spec)

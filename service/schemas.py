@@ -18,9 +18,9 @@ __all__ = ["TaskSpec"]
 JOB_EXAMPLE: dict[str, Any] = {
     "name": "fast_bend",
     "family": "bend",
-    "task": "pose_change",
     "clip": {"preparation": 1.0, "duration": 0.4, "decay": 1.2},
-    "pose_change": {"target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
+    "task": {"type": "pose_change",
+             "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
     "optimize": {"threshold": 1.1, "max_evaluations": 700},
 }
 #: The example body of `POST /bases`.

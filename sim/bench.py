@@ -4,7 +4,7 @@ Both cases run in the same process, one after the other, after a warm-up (numba 
 is excluded): `raw_ode` steps the same humanoid world with its four heel/toe ground contacts
 made, stepped and cleared each step, no controller (the world is reset to the standing pose
 every RAW_RESET_SECONDS so it stays in a standing configuration); `controller` runs the quiet
-stance clip through `Simulator.run` (state read-back, model terms, QP at 60 Hz, inverse
+stance clip through `Rollout.run` (state read-back, model terms, QP at 60 Hz, inverse
 dynamics, CP measurement).
 """
 
@@ -14,20 +14,20 @@ import time
 
 import numpy as np
 
-from sim.clip import Simulator
+from sim.physics import DT
+from sim.rollout import Rollout
 from sim.spec import parse_spec
-from sim.world import DT
 
 RAW_RESET_SECONDS = 0.5
 
 
 def _spec(seconds: float):
-    return parse_spec({"name": "bench_quiet_stance", "task": "quiet_stance",
+    return parse_spec({"name": "bench_quiet_stance", "task": {"type": "quiet_stance"},
                        "clip": {"preparation": 0.0, "duration": seconds, "decay": 0.0}})
 
 
-def raw_ode_cpu_per_second(sim: Simulator, seconds: float) -> float:
-    w, ch = sim.world, sim.character
+def raw_ode_cpu_per_second(sim: Rollout, seconds: float) -> float:
+    w, ch = sim.physics, sim.character
     pts = np.concatenate([[h, t] for h, t in zip(ch.heel0, ch.toe0, strict=True)])
     pts[:, 1] = 0.0
     feet = np.repeat(ch.feet, 2).tolist()
@@ -48,8 +48,8 @@ def raw_ode_cpu_per_second(sim: Simulator, seconds: float) -> float:
 
 def run_bench(seconds: float = 5.0) -> dict[str, float]:
     """Measure both cases in this process; returns CPU seconds per simulated second and ratio."""
-    sim = Simulator(_spec(seconds))
-    Simulator(_spec(0.05)).run()  # warm-up: numba compilation and caches
+    sim = Rollout(_spec(seconds))
+    Rollout(_spec(0.05)).run()  # warm-up: numba compilation and caches
     raw = raw_ode_cpu_per_second(sim, seconds)
     t0 = time.process_time()
     ev = sim.run()

@@ -26,6 +26,24 @@ DATA_DIR = Path(__file__).parent / "data"
 ROOT_DOF = 3
 
 
+GEOM_SHAPES = ("sphere", "capsule")
+DEFAULT_TRACKING_WEIGHT = 1.0
+
+
+@dataclass(frozen=True)
+class GeomDef:
+    """A contact shape fixed on a body, in world coordinates of the zero pose (m).
+
+    sphere: `a` is the centre; capsule: the segment from `a` to `b`; `radius` for both."""
+
+    name: str | None
+    body: int
+    shape: str
+    a: tuple[float, float]
+    b: tuple[float, float]
+    radius: float
+
+
 @dataclass(frozen=True)
 class Character:
     """A planar articulated character as arrays (SI units, zero pose in world coordinates)."""
@@ -48,6 +66,22 @@ class Character:
     point_radius: np.ndarray  # (np,) m
     standing_offsets: np.ndarray  # (nh,) rad, standing pose relative to the zero pose
     balance_standing: bool
+    tracking_weights: np.ndarray  # (nh,) the balance controller's tracking weight per hinge
+    torque_limits: np.ndarray  # (nh,) N m, |hinge torque| is clamped to this
+    geoms: tuple[GeomDef, ...] = ()  # contact shapes against props
+    hands: tuple[str, ...] = ()  # names of the geoms that can hold an object
+    torso: int = 0  # body a push acts on by default
+
+    @property
+    def support_length(self) -> float:
+        """Heel-to-toe length (m) of the support interval in the zero pose."""
+        return float(self.toe0[:, 0].max() - self.heel0[:, 0].min())
+
+    def geom(self, name: str) -> GeomDef:
+        for g in self.geoms:
+            if g.name == name:
+                return g
+        raise CharacterError(f"unknown geom {name!r}")
 
     @property
     def total_mass(self) -> float:
@@ -86,9 +120,33 @@ def _vec2(value: Any, where: str) -> np.ndarray:
 
 
 def _positive(value: Any, where: str) -> float:
-    if not isinstance(value, int | float) or not value > 0:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
         raise CharacterError(f"{where}: must be a positive number, got {value!r}")
     return float(value)
+
+
+def _nonnegative(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+        raise CharacterError(f"{where}: must be a number >= 0, got {value!r}")
+    return float(value)
+
+
+def _geom(g: Any, body: int, where: str) -> GeomDef:
+    if not isinstance(g, dict) or g.get("shape") not in GEOM_SHAPES:
+        raise CharacterError(f"{where}.shape: must be one of {', '.join(GEOM_SHAPES)}")
+    name = g.get("name")
+    if name is not None and not isinstance(name, str):
+        raise CharacterError(f"{where}.name: must be a string")
+    radius = _positive(g.get("radius"), f"{where}.radius")
+    if g["shape"] == "sphere":
+        a = b = _vec2(g.get("center"), f"{where}.center")
+    else:
+        a = _vec2(g.get("from"), f"{where}.from")
+        b = _vec2(g.get("to"), f"{where}.to")
+        if np.allclose(a, b):
+            raise CharacterError(f"{where}: a capsule needs two distinct end points")
+    return GeomDef(name, body, g["shape"], (float(a[0]), float(a[1])),
+                   (float(b[0]), float(b[1])), radius)
 
 
 def parse_character(data: Any, height: float | None = None, mass: float | None = None,
@@ -110,6 +168,8 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
     hinge_names: list[str] = []
     parent, mass_l, inertia_l, com_l, anchor_l, limits_l = [], [], [], [], [], []
     feet, heels, toes, pbody, pts, prad = [], [], [], [], [], []
+    weights_l, torques_l, geoms_l = [], [], []
+    torque_limit = _positive(data.get("torque_limit"), "torque_limit")
     for i, seg in enumerate(segs):
         where = f"segments[{i}]"
         if not isinstance(seg, dict) or not isinstance(seg.get("name"), str):
@@ -140,6 +200,9 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
                 raise CharacterError(f"{where}.joint.limits: must be [lo, hi] degrees, lo < hi")
             if not lim[0] <= 0.0 <= lim[1]:
                 raise CharacterError(f"{where}.joint.limits: must include the zero pose (0)")
+            weights_l.append(_nonnegative(joint.get("weight", DEFAULT_TRACKING_WEIGHT),
+                                          f"{where}.joint.weight"))
+            torques_l.append(_positive(joint.get("torque", torque_limit), f"{where}.joint.torque"))
             parent.append(body_names.index(pname))
             anchor_l.append(_vec2(joint.get("anchor"), f"{where}.joint.anchor"))
             hinge_names.append(joint["name"])
@@ -162,6 +225,8 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
             pbody.append(i)
             pts.append(_vec2(p[:2], f"{where}.points[{k}]"))
             prad.append(float(p[2]))
+        for k, g in enumerate(seg.get("geoms", []) or []):
+            geoms_l.append(_geom(g, i, f"{where}.geoms[{k}]"))
     if not feet:
         raise CharacterError("segments: at least one segment needs a foot (heel and toe)")
 
@@ -171,6 +236,16 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
         if jname not in hinge_names:
             raise CharacterError(f"standing.pose: unknown joint {jname!r}")
         offsets[hinge_names.index(jname)] = np.radians(float(deg))
+
+    geom_names = [g.name for g in geoms_l if g.name is not None]
+    if len(set(geom_names)) != len(geom_names):
+        raise CharacterError("geoms: geom names must be unique")
+    hands = data.get("hands") or []
+    if not isinstance(hands, list) or any(hd not in geom_names for hd in hands):
+        raise CharacterError(f"hands: must list geom names, got {hands!r}")
+    torso_name = data.get("torso", root)
+    if torso_name not in body_names:
+        raise CharacterError(f"torso: {torso_name!r} is not a segment")
 
     h = ref_h if height is None else float(height)
     m = ref_m if mass is None else float(mass)
@@ -199,6 +274,12 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
         point_radius=arr(prad) * ls,
         standing_offsets=offsets,
         balance_standing=bool(standing.get("balance", False)),
+        tracking_weights=arr(weights_l, dtype=float),
+        torque_limits=arr(torques_l, dtype=float),
+        geoms=tuple(GeomDef(g.name, g.body, g.shape, (g.a[0] * ls, g.a[1] * ls),
+                            (g.b[0] * ls, g.b[1] * ls), g.radius * ls) for g in geoms_l),
+        hands=tuple(hands),
+        torso=body_names.index(torso_name),
     )
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -34,6 +34,35 @@ class Traces:
 
 
 @dataclass
+class Frames:
+    """Poses for replay, sampled every `1 / rate` s (row i is at time t[i]).
+
+    poses[i][j] = (x, y, angle) in m and rad of the CoM of body or prop `names[j]` (the
+    character's bodies in file order, then every prop and its chain links). cm, cm_ref: (x, y);
+    cp: centre of pressure x (None without foot contact); support: (back edge x, front edge x).
+    """
+
+    rate: float  # Hz
+    names: list[str]
+    t: list[float]
+    poses: list[list[tuple[float, float, float]]]
+    cm: list[tuple[float, float]]
+    cm_ref: list[tuple[float, float]]
+    cp: list[float | None]
+    support: list[tuple[float, float]]
+
+    def to_dict(self) -> dict[str, Any]:
+        def clean(v: Any) -> Any:
+            if isinstance(v, float):
+                return None if v != v else v
+            if isinstance(v, list | tuple):
+                return [clean(x) for x in v]
+            return v
+
+        return {k: clean(v) for k, v in asdict(self).items()}
+
+
+@dataclass
 class Evaluation:
     """Outcome of one clip.
 
@@ -41,6 +70,10 @@ class Evaluation:
         no-contact steps left out. A fall replaces it by a penalty larger than any non-fall
         objective (see sim.clip.fall_penalty), so every fall ranks worse than every non-fall.
     error_norm: the 2-norm of the error actually accumulated until the clip ended (or fell).
+    fall_direction: "forward" or "backward" (where the CM's capture point c_x + cd_x
+        sqrt(c_y / g) was relative to the support centre at the fall), None without a fall.
+    task_success: the task's own goal (ball held at the end, ...), None for tasks that have
+        none beyond balance. task_penalty: what the task added to the objective (0 if nothing).
     """
 
     objective: float
@@ -53,10 +86,18 @@ class Evaluation:
     cpu_seconds: float
     steps: int
     contact_steps: int
+    fall_direction: str | None = None
+    task_success: bool | None = None
+    task_penalty: float = 0.0
     traces: Traces | None = field(default=None, repr=False)
+    frames: Frames | None = field(default=None, repr=False)
 
     def to_dict(self, include_traces: bool = False) -> dict[str, Any]:
-        d = {k: v for k, v in asdict(self).items() if k != "traces"}
+        """JSON-ready; with include_traces also `traces` and `frames` (when recorded)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self)
+             if f.name not in ("traces", "frames")}
         if include_traces and self.traces is not None:
             d["traces"] = self.traces.to_dict()
+        if include_traces and self.frames is not None:
+            d["frames"] = self.frames.to_dict()
         return d

@@ -1,9 +1,20 @@
 """Task specs: the one validated model shared by the CLI, the optimiser and the HTTP API.
 
 A spec describes one clip: a preparation window (where anticipation happens), a task window
-(a pose change, a push, ...) and a decay window, plus the controller settings, the CMRT
+(a pose change, a push, a catch ...) and a decay window, plus the controller settings, the CMRT
 parameterisation and the optimiser settings. Specs are read from YAML or JSON; every field is
-checked and unknown fields are rejected, so a typo is an error naming the field.
+checked (strict types, finite numbers, no control characters: `sim.specbase`) and unknown
+fields are rejected, so a typo is an error naming the field. Every rule the simulator relies on
+(joint and body names of the character, windows inside the clip, the CoP box inside the
+support) is checked here, once, when the spec is parsed.
+
+The `task` block is a discriminated union on `type` over the registry `sim.tasks.TASK_TYPES`:
+
+    task: {type: push, force: 100, direction: forward}
+    task: {type: pose_change, target: {waist: -90}}
+
+The pre-registry form (`task: push` with a separate `push:` / `pose_change:` / `motions:`
+block) is still read and converted to it; `model_dump()` always gives the new form.
 
 Units: seconds, metres, newtons, kilograms; joint angles in specs are in degrees.
 """
@@ -12,37 +23,50 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
-from sim.errors import SpecError
+from sim.character import DATA_DIR, Character, load_character
+from sim.errors import CharacterError, SpecError
+from sim.specbase import StrictModel
+from sim.tasks import TASK_TYPES
 
-#: Hinge names of the planar humanoid (the coordinate order is the character file's).
-HINGE_NAMES: tuple[str, ...] = (
-    "hip_r", "knee_r", "ankle_r", "hip_l", "knee_l", "ankle_l",
-    "waist", "neck", "shoulder_r", "elbow_r", "shoulder_l", "elbow_l",
-)
-
-#: Names accepted in controller overrides and gain schedules (see sim.controller.ControllerParams).
+#: Names accepted in controller overrides and gain schedules (see
+#: sim.controllers.momentum.ControllerParams).
 GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l", "b_h", "b_t",
                                "b_p", "cop_box")
 
 MAX_CLIP_SECONDS = 20.0
-MAX_FORCE_N = 5000.0
+#: Narrowest room (m) the CoP box may leave on each side of the support centre.
+MIN_COP_BOX_WIDTH = 0.005
+DEFAULT_CHARACTER = "humanoid"
 
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Strict = StrictModel
+#: The `task` field: one of the registered task types, chosen by its `type`.
+TaskBlock = Annotated[Union[tuple(TASK_TYPES.values())], Field(discriminator="type")]  # noqa: UP007
+#: Blocks of the pre-registry form, by task name.
+_LEGACY_BLOCKS = {"push": "push", "pose_change": "pose_change", "sequence": "motions"}
 
 
 class CharacterRef(_Strict):
-    """Which character, scaled to a height (m) and mass (kg)."""
+    """Which character (a file `sim/data/<model>.yaml`), scaled to a height (m), mass (kg)."""
 
-    model: Literal["humanoid"] = "humanoid"
+    model: Annotated[str, Field(pattern=r"^[a-z0-9_]{1,64}$")] = DEFAULT_CHARACTER
     height: Annotated[float, Field(gt=1.0, le=2.5)] = 1.75
     mass: Annotated[float, Field(gt=20.0, le=250.0)] = 70.0
+
+    @field_validator("model")
+    @classmethod
+    def _exists(cls, v: str) -> str:
+        if not (DATA_DIR / f"{v}.yaml").is_file():
+            known = sorted(p.stem for p in DATA_DIR.glob("*.yaml"))
+            raise ValueError(f"unknown character {v!r}; characters are {', '.join(known)}")
+        return v
+
+    def load(self) -> Character:
+        return load_character(self.model, self.height, self.mass)
 
 
 class Clip(_Strict):
@@ -69,55 +93,6 @@ class Clip(_Strict):
         if self.length > MAX_CLIP_SECONDS:
             raise ValueError(f"clip length {self.length:g} s exceeds {MAX_CLIP_SECONDS:g} s")
         return self
-
-
-def _check_pose(pose: dict[str, float]) -> dict[str, float]:
-    for name, deg in pose.items():
-        if name not in HINGE_NAMES:
-            raise ValueError(f"unknown joint {name!r}; joints are {', '.join(HINGE_NAMES)}")
-        if not -180.0 <= deg <= 180.0:
-            raise ValueError(f"joint {name!r}: {deg} degrees is outside [-180, 180]")
-    return pose
-
-
-class Motion(_Strict):
-    """A pose change: ease-in-ease-out from the current target to `target` over `duration`.
-
-    `target` maps hinge names to angles in degrees relative to the standing pose; joints not
-    named keep their previous target. `start` is seconds from the clip's start.
-    `cmrt` optionally names a result file whose CMRT is superposed for this motion.
-    """
-
-    target: dict[str, float]
-    start: Annotated[float, Field(ge=0.0)]
-    duration: Annotated[float, Field(gt=0.0, le=10.0)]
-    cmrt: str | None = None
-
-    @field_validator("target")
-    @classmethod
-    def _pose(cls, v: dict[str, float]) -> dict[str, float]:
-        return _check_pose(v)
-
-
-class PoseChange(_Strict):
-    """A single pose change over the clip's task window."""
-
-    target: dict[str, float]
-
-    @field_validator("target")
-    @classmethod
-    def _pose(cls, v: dict[str, float]) -> dict[str, float]:
-        return _check_pose(v)
-
-
-class Push(_Strict):
-    """A horizontal external force (N) on a body from `start` (s from clip start), `duration` s."""
-
-    force: Annotated[float, Field(gt=0.0, le=MAX_FORCE_N)]
-    direction: Literal["forward", "backward"] = "forward"
-    body: Literal["trunk", "pelvis", "head"] = "trunk"
-    start: Annotated[float, Field(ge=0.0)] | None = None
-    duration: Annotated[float, Field(gt=0.0, le=5.0)] | None = None
 
 
 class GainSchedule(_Strict):
@@ -177,17 +152,38 @@ class TaskSpec(_Strict):
     """One task clip. See examples/*.yaml."""
 
     name: Annotated[str, Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.\-]+$")]
-    task: Literal["quiet_stance", "push", "pose_change", "sequence"]
+    task: TaskBlock
     family: Annotated[str, Field(min_length=1, max_length=100)] | None = None
     character: CharacterRef = CharacterRef()
     clip: Clip
-    pose_change: PoseChange | None = None
-    push: Push | None = None
-    motions: Annotated[list[Motion], Field(max_length=32)] | None = None
     controller: dict[str, Annotated[float, Field(gt=0.0, le=1e4)]] = {}
     schedule: Annotated[list[GainSchedule], Field(max_length=16)] = []
     cmrt: CmrtConfig = CmrtConfig()
     optimize: OptimizeConfig = OptimizeConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy_task(cls, data: Any) -> Any:
+        """`task: push` + `push: {...}` (the pre-registry form) -> `task: {type: push, ...}`."""
+        if not isinstance(data, dict) or not isinstance(data.get("task"), str):
+            return data
+        d = dict(data)
+        kind = d["task"]
+        task: dict[str, Any] = {"type": kind}
+        for block in set(_LEGACY_BLOCKS.values()):
+            if block in d and d[block] is None:
+                del d[block]
+        block = _LEGACY_BLOCKS.get(kind)
+        if block is not None and block in d:
+            value = d.pop(block)
+            if block == "motions":
+                task["motions"] = value
+            elif isinstance(value, dict):
+                task.update(value)
+            else:
+                task[block] = value  # reported as an unknown field of the task
+        d["task"] = task
+        return d
 
     @field_validator("controller")
     @classmethod
@@ -198,39 +194,40 @@ class TaskSpec(_Strict):
         return v
 
     @model_validator(mode="after")
-    def _task_block(self) -> TaskSpec:
-        need = {"push": "push", "pose_change": "pose_change", "sequence": "motions"}.get(self.task)
-        for block in ("push", "pose_change", "motions"):
-            present = getattr(self, block) is not None
-            if block == need and not present:
-                raise ValueError(f"task {self.task!r} needs a {block!r} block")
-            if block != need and present:
-                raise ValueError(f"{block!r} is not allowed for task {self.task!r}")
-        if self.push is not None:
-            start, dur = self.push_window()
-            if start + dur > self.clip.length + 1e-9:
-                raise ValueError("push: start + duration exceeds the clip length")
-        for i, m in enumerate(self.motions or []):
-            if m.start + m.duration > self.clip.length + 1e-9:
-                raise ValueError(f"motions[{i}]: start + duration exceeds the clip length")
+    def _cross_field(self) -> TaskSpec:
+        try:
+            ch = self.character.load()
+        except CharacterError as err:
+            raise ValueError(f"character: {err}") from None
+        self.task.check(self, ch)
         for i, s in enumerate(self.schedule):
             a, b = self.schedule_window(s)
             if b <= a:
-                raise ValueError(f"schedule[{i}]: end must be after start")
+                raise ValueError(f"schedule.{i}: end must be after start")
+        room = 0.5 * ch.support_length - MIN_COP_BOX_WIDTH
+        boxes = [("controller.cop_box", self.controller.get("cop_box"))] + [
+            (f"schedule.{i}.set.cop_box", s.set.get("cop_box"))
+            for i, s in enumerate(self.schedule)]
+        for where, v in boxes:
+            if v is not None and not v < room:
+                raise ValueError(
+                    f"{where}: must be below half the support length minus "
+                    f"{MIN_COP_BOX_WIDTH} m ({room:.3f} m for this character), got {v:g}")
         return self
 
     # ---- derived quantities -------------------------------------------------------------
     @property
     def family_name(self) -> str:
-        """The library family: `family` if given, else the spec's name without a trailing tag."""
+        """The library family: `family` if given, else the spec's name."""
         return self.family or self.name
 
-    def push_window(self) -> tuple[float, float]:
-        """(start, duration) of the push in seconds; defaults to the task window."""
-        assert self.push is not None
-        start = self.push.start if self.push.start is not None else self.clip.task_start
-        dur = self.push.duration if self.push.duration is not None else self.clip.duration
-        return start, dur
+    @property
+    def task_type(self) -> str:
+        """The task's registered name (`task.type`)."""
+        return self.task.type
+
+    def load_character(self) -> Character:
+        return self.character.load()
 
     def schedule_window(self, s: GainSchedule) -> tuple[float, float]:
         start = s.start if s.start is not None else self.clip.task_start
@@ -238,12 +235,9 @@ class TaskSpec(_Strict):
         return start, end
 
     def task_parameters(self) -> dict[str, float]:
-        """The numbers that place this task within its family (library keys)."""
-        params: dict[str, float] = {"duration": self.clip.duration}
-        if self.push is not None:
-            sign = 1.0 if self.push.direction == "forward" else -1.0
-            params["force"] = sign * self.push.force
-        return params
+        """The numbers that place this task within its family (library keys): the task
+        window's duration and the task type's own (e.g. a push's signed `force`)."""
+        return {"duration": self.clip.duration, **self.task.parameters()}
 
     @property
     def cmrt_dimension(self) -> int:
@@ -255,9 +249,17 @@ class TaskSpec(_Strict):
 def _format_error(err: ValidationError) -> str:
     lines = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "<spec>"
+        loc = list(e["loc"])
+        if len(loc) > 1 and loc[0] == "task" and loc[1] in TASK_TYPES:
+            del loc[1]  # pydantic puts the union member's tag in the path
         msg = e["msg"].removeprefix("Value error, ")
-        lines.append(f"{loc}: {msg}")
+        if e["type"] == "union_tag_invalid":
+            msg = (f"unknown task type {e['ctx']['tag']!r}; task types are "
+                   f"{', '.join(TASK_TYPES)}")
+        elif e["type"] == "union_tag_not_found":
+            msg = f"needs a `type`, one of {', '.join(TASK_TYPES)}"
+        where = ".".join(str(p) for p in loc)
+        lines.append(f"{where}: {msg}" if where else msg)
     return "; ".join(lines)
 
 

@@ -3,7 +3,7 @@
     from store import open_repository
     repo = open_repository()            # URL from CMRT_DATABASE_URL; migrates to head
     job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
-                          family=spec.family_name, task=spec.task, seed=1, workers=2)
+                          family=spec.family_name, task=spec.task_type, seed=1, workers=2)
 
 See `store.repository.Repository` for the contract. No web or queue imports here.
 """

@@ -80,7 +80,7 @@ async def submit_job(
     if basis is not None:
         _check_basis(svc.repo, basis, spec)
     job = svc.repo.create_job(spec.model_dump(mode="json"), name=spec.name,
-                              family=spec.family_name, task=spec.task,
+                              family=spec.family_name, task=spec.task_type,
                               seed=0 if seed is None else seed, basis_id=basis)
     if svc.run_drivers:
         svc.runner.submit(job.id)

@@ -18,9 +18,9 @@ from cmrt.cli import main
 BEND = {
     "name": "cli_bend",
     "family": "bend",
-    "task": "pose_change",
     "clip": {"preparation": 0.3, "duration": 0.3, "decay": 0.3},
-    "pose_change": {"target": {"waist": -40, "shoulder_r": 40, "shoulder_l": 40}},
+    "task": {"type": "pose_change",
+                 "target": {"waist": -40, "shoulder_r": 40, "shoulder_l": 40}},
     "optimize": {"max_evaluations": 20},
 }
 
@@ -60,10 +60,10 @@ def test_sequence_superposes_a_stored_cmrt(optimised, capsys):
     d, _spec, out, res = optimised
     seq = {
         "name": "cli_seq",
-        "task": "sequence",
         "clip": BEND["clip"],
-        "motions": [{"start": 0.3, "duration": 0.3, "target": BEND["pose_change"]["target"],
-                     "cmrt": out.name}],
+        "task": {"type": "sequence", "motions": [
+            {"start": 0.3, "duration": 0.3, "target": BEND["task"]["target"],
+             "cmrt": out.name}]},
     }
     path = d / "seq.yaml"
     path.write_text(yaml.safe_dump(seq))

@@ -89,9 +89,9 @@ def bend(name: str, duration: float = 0.3, **optimize) -> dict:
     return {
         "name": name,
         "family": "it_bend",
-        "task": "pose_change",
         "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
-        "pose_change": {"target": {"waist": -30, "shoulder_r": 30, "shoulder_l": 30}},
+        "task": {"type": "pose_change",
+                 "target": {"waist": -30, "shoulder_r": 30, "shoulder_l": 30}},
         "optimize": opt,
     }
 

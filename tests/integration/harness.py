@@ -329,7 +329,7 @@ class LocalTopology(BaseTopology):
         code = ("from sim.spec import parse_spec; from optim.objective import SimObjective; "
                 "from optim.spline import flat_params; import json, sys; "
                 "s = parse_spec(json.loads(sys.argv[1])); SimObjective(s)(flat_params(s))")
-        spec = {"name": "warm", "task": "quiet_stance", "clip": {"preparation": 0.0,
+        spec = {"name": "warm", "task": {"type": "quiet_stance"}, "clip": {"preparation": 0.0,
                 "duration": 0.1, "decay": 0.0}}
         import json
 

@@ -23,7 +23,7 @@ def make_spec(
         {
             "name": name,
             "family": family,
-            "task": "quiet_stance",
+            "task": {"type": "quiet_stance"},
             "clip": {"preparation": 1.0, "duration": duration, "decay": 1.0},
             "cmrt": {"knots": knots, "vertical": vertical},
             "optimize": optimize,

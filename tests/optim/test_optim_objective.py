@@ -20,7 +20,7 @@ def tiny():
     return parse_spec(
         {
             "name": "tiny",
-            "task": "quiet_stance",
+            "task": {"type": "quiet_stance"},
             "clip": {"preparation": 0.2, "duration": 0.1, "decay": 0.2},
         }
     )
@@ -72,9 +72,10 @@ def test_serial_and_pool_optimize_a_real_bend_identically():
     from optim.run import optimize
 
     spec = parse_spec({
-        "name": "short_bend", "family": "bend", "task": "pose_change",
+        "name": "short_bend", "family": "bend",
         "clip": {"preparation": 0.3, "duration": 0.3, "decay": 0.3},
-        "pose_change": {"target": {"waist": -40, "shoulder_r": 40, "shoulder_l": 40}},
+        "task": {"type": "pose_change",
+                 "target": {"waist": -40, "shoulder_r": 40, "shoulder_l": 40}},
         "optimize": {"max_evaluations": 30},
     })
     serial = optimize(spec, SerialExecutor(), seed=11).to_dict()

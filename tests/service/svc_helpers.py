@@ -9,8 +9,7 @@ def bend_spec(name: str = "bend_a", duration: float = 0.3, **optimize) -> dict:
     return {
         "name": name,
         "family": "bend",
-        "task": "pose_change",
         "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
-        "pose_change": {"target": {"waist": -30}},
+        "task": {"type": "pose_change", "target": {"waist": -30}},
         "optimize": opt,
     }

@@ -111,12 +111,13 @@ def test_cancel(client):
     [
         (b"{not json", 400, "malformed JSON"),
         (b"", 400, "empty"),
-        (b'{"name": "x", "task": "quiet_stance", "clip": {"duration": NaN}}', 400, "NaN"),
-        (json.dumps({**bend_spec(), "task": "juggle"}).encode(), 422, "task"),
+        (b'{"name": "x", "task": {"type": "quiet_stance"}, "clip": {"duration": NaN}}', 400,
+         "NaN"),
+        (json.dumps({**bend_spec(), "task": {"type": "juggle"}}).encode(), 422, "task"),
         (json.dumps({**bend_spec(), "clip": {"duration": -1}}).encode(), 422, "clip.duration"),
         (json.dumps({**bend_spec(), "typo": 1}).encode(), 422, "typo"),
-        (json.dumps({**bend_spec(), "task": "sequence", "pose_change": None, "motions": [
-            {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 40}).encode(),
+        (json.dumps({**bend_spec(), "task": {"type": "sequence", "motions": [
+            {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 40}}).encode(),
          422, "motions"),
         (json.dumps({"spec": bend_spec(), "seed": -1}).encode(), 422, "seed"),
         (json.dumps({"spec": bend_spec(), "colour": 1}).encode(), 422, "colour"),

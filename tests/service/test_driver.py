@@ -18,7 +18,7 @@ from worker.executors import LocalPoolExecutor
 def _job(repo, spec=None, seed=1):
     spec = parse_spec(spec or bend_spec())
     return repo.create_job(spec.model_dump(mode="json"), name=spec.name, family=spec.family_name,
-                           task=spec.task, seed=seed)
+                           task=spec.task_type, seed=seed)
 
 
 def test_job_runs_to_its_stop_rule_and_lands_in_library(repo, config, local_executor):

@@ -1,4 +1,4 @@
-"""The planar model (sim.dynamics) against ODE (sim.world): kinematics, signs, accelerations,
+"""The planar model (sim.dynamics) against ODE (sim.physics): kinematics, signs, accelerations,
 momenta, and inverse dynamics in quiet stance.
 
 Free-floating tests put the character 5 m above the ground and make no contacts. Random states
@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from sim.character import ROOT_DOF, load_character
-from sim.clip import standing_state
 from sim.dynamics import (
     GRAVITY,
     WRENCH_OK,
@@ -25,7 +24,8 @@ from sim.dynamics import (
     momentum_bias,
     step_model,
 )
-from sim.world import DT, World
+from sim.physics import DT, Physics
+from sim.rollout import standing_state
 
 FLIGHT_HEIGHT = 5.0  # m, root height for free-floating tests: far from the ground
 
@@ -42,7 +42,7 @@ def arrays(ch):
 
 @pytest.fixture()
 def world(ch, arrays):
-    w = World(ch, arrays)
+    w = Physics(ch, arrays)
     yield w
     w.close()
 

@@ -33,12 +33,12 @@ def test_example_loads(path):
 
 def test_example_contents():
     push = load_spec(EXAMPLES_DIR / "push.yaml")
-    assert push.task == "push" and push.push.force == 100.0
-    assert push.push_window() == (1.0, 0.2)  # defaults to the task window
+    assert push.task_type == "push" and push.task.force == 100.0
+    assert push.task.window(push.clip) == (1.0, 0.2)  # defaults to the task window
     assert push.task_parameters() == {"duration": 0.2, "force": 100.0}
     fast = load_spec(EXAMPLES_DIR / "fast_bend.yaml")
     slow = load_spec(EXAMPLES_DIR / "slow_bend.yaml")
-    assert fast.pose_change.target == slow.pose_change.target
+    assert fast.task.target == slow.task.target
     assert fast.clip.duration < slow.clip.duration
     # A schedule without start/end covers the task window.
     for path in EXAMPLES:
@@ -49,13 +49,13 @@ def test_example_contents():
 
 
 def _unknown_joint(d):
-    d["pose_change"]["target"]["wrist"] = 10.0
-    return "slow_bend", "pose_change.target", "unknown joint 'wrist'"
+    d["task"]["target"]["wrist"] = 10.0
+    return "slow_bend", "task.target", "unknown joint 'wrist'"
 
 
 def _joint_out_of_range(d):
-    d["pose_change"]["target"]["waist"] = -200.0
-    return "slow_bend", "pose_change.target", "outside [-180, 180]"
+    d["task"]["target"]["waist"] = -200.0
+    return "slow_bend", "task.target", "outside [-180, 180]"
 
 
 def _negative_duration(d):
@@ -83,30 +83,85 @@ def _unknown_nested_field(d):
     return "slow_bend", "clip.prep", "Extra inputs are not permitted"
 
 
-def _missing_push_block(d):
-    del d["push"]
-    return "push", "push", "task 'push' needs a 'push' block"
+def _missing_push_force(d):
+    del d["task"]["force"]
+    return "push", "task.force", "Field required"
 
 
-def _push_block_on_bend(d):
-    d["push"] = {"force": 50.0}
-    return "slow_bend", "push", "'push' is not allowed for task 'pose_change'"
+def _push_field_on_bend(d):
+    d["task"]["force"] = 50.0
+    return "slow_bend", "task.force", "Extra inputs are not permitted"
 
 
 def _push_past_clip_end(d):
-    d["push"]["start"] = 2.9  # + 0.2 s default duration > 3.0 s clip
-    return "push", "push", "start + duration exceeds the clip length"
+    d["task"]["start"] = 2.9  # + 0.2 s default duration > 3.0 s clip
+    return "push", "task", "start + duration exceeds the clip length"
 
 
 def _push_duration_past_end(d):
-    d["push"]["start"] = 1.0
-    d["push"]["duration"] = 2.5
-    return "push", "push", "start + duration exceeds the clip length"
+    d["task"]["start"] = 1.0
+    d["task"]["duration"] = 2.5
+    return "push", "task", "start + duration exceeds the clip length"
 
 
 def _negative_force(d):
-    d["push"]["force"] = -100.0
-    return "push", "push.force", "greater than 0"
+    d["task"]["force"] = -100.0
+    return "push", "task.force", "greater than 0"
+
+
+def _push_unknown_body(d):
+    d["task"]["body"] = "tail"
+    return "push", "task.body", "unknown body 'tail'"
+
+
+def _task_without_type(d):
+    d["task"] = {"force": 10.0}
+    return "push", "task", "needs a `type`"
+
+
+def _string_duration(d):
+    d["clip"]["duration"] = "0.2"
+    return "push", "clip.duration", "valid number"
+
+
+def _boolean_duration(d):
+    d["clip"]["duration"] = True
+    return "push", "clip.duration", "valid number"
+
+
+def _infinite_threshold(d):
+    d["optimize"]["threshold"] = float("inf")  # what JSON's 1e999 parses to
+    return "push", "optimize.threshold", "finite number"
+
+
+def _nan_force(d):
+    d["task"]["force"] = float("nan")
+    return "push", "task.force", "finite number"
+
+
+def _nul_in_family(d):
+    d["family"] = "pu\x00sh"
+    return "push", "family", "control character"
+
+
+def _float_knots(d):
+    d["cmrt"] = {"knots": 4.0}
+    return "push", "cmrt.knots", "valid integer"
+
+
+def _cop_box_too_wide(d):
+    d["controller"] = {"cop_box": 10000.0}
+    return "push", "controller.cop_box", "below half the support length"
+
+
+def _scheduled_cop_box_too_wide(d):
+    d["schedule"] = [{"set": {"cop_box": 0.2}}]
+    return "slow_bend", "schedule.0.set.cop_box", "below half the support length"
+
+
+def _unknown_character(d):
+    d["character"] = {"model": "robot"}
+    return "push", "character.model", "unknown character 'robot'"
 
 
 def _unknown_gain_in_schedule(d):
@@ -136,7 +191,7 @@ def _schedule_set_negative(d):
 
 def _schedule_end_before_start(d):
     d["schedule"] = [{"scale": {"k_t": 2.0}, "start": 1.3, "end": 1.2}]
-    return "slow_bend", "schedule[0]", "end must be after start"
+    return "slow_bend", "schedule.0", "end must be after start"
 
 
 def _bad_name(d):
@@ -145,14 +200,17 @@ def _bad_name(d):
 
 
 def _unknown_task(d):
-    d["task"] = "walk"
-    return "slow_bend", "task", "Input should be"
+    d["task"] = {"type": "walk"}
+    return "slow_bend", "task", "unknown task type 'walk'"
 
 
 BAD_SPECS = [
     _unknown_joint, _joint_out_of_range, _negative_duration, _negative_decay, _clip_too_long,
-    _unknown_top_field, _unknown_nested_field, _missing_push_block, _push_block_on_bend,
-    _push_past_clip_end, _push_duration_past_end, _negative_force, _unknown_gain_in_schedule,
+    _unknown_top_field, _unknown_nested_field, _missing_push_force, _push_field_on_bend,
+    _push_past_clip_end, _push_duration_past_end, _negative_force, _push_unknown_body,
+    _task_without_type, _string_duration, _boolean_duration, _infinite_threshold, _nan_force,
+    _nul_in_family, _float_knots, _cop_box_too_wide, _scheduled_cop_box_too_wide,
+    _unknown_character, _unknown_gain_in_schedule,
     _unknown_gain_in_controller, _schedule_end_before_start, _bad_name, _unknown_task,
     _schedule_without_changes, _schedule_scale_and_set_same_gain, _schedule_set_negative,
 ]
@@ -194,5 +252,32 @@ def test_non_mapping_and_unreadable(tmp_path):
     with pytest.raises(SpecError, match="not valid YAML"):
         load_spec(bad)
     js = tmp_path / "s.json"
-    js.write_text('{"name": "q", "task": "quiet_stance", "clip": {"duration": 1.0}}')
+    js.write_text('{"name": "q", "task": {"type": "quiet_stance"}, "clip": {"duration": 1.0}}')
     assert load_spec(js).clip.length == 3.0  # default preparation 1 s and decay 1 s
+
+
+def test_legacy_task_form_is_converted():
+    """The pre-registry form (`task: push` + a `push:` block) parses to the same spec."""
+    new = load_spec(EXAMPLES_DIR / "push.yaml")
+    old = {k: v for k, v in _load("push").items() if k != "task"}
+    old.update({"task": "push", "push": {"force": 100.0, "direction": "forward",
+                                         "body": "trunk"}})
+    assert parse_spec(old) == new
+    bend = {k: v for k, v in _load("slow_bend").items() if k != "task"}
+    bend.update({"task": "pose_change", "pose_change": {"target": {"waist": -90.0,
+                 "shoulder_r": 90.0, "shoulder_l": 90.0}}, "push": None})
+    assert parse_spec(bend) == load_spec(EXAMPLES_DIR / "slow_bend.yaml")
+    assert parse_spec({"name": "q", "task": "quiet_stance", "clip": {"duration": 1.0}}
+                      ).task_type == "quiet_stance"
+    # The dump is the new form and parses back to the same spec.
+    dumped = new.model_dump(mode="json")
+    assert dumped["task"]["type"] == "push" and "push" not in dumped
+    assert parse_spec(dumped) == new
+
+
+def test_task_registry_names_every_type():
+    from sim.tasks import TASK_TYPES
+
+    assert {"quiet_stance", "push", "pose_change", "sequence"} <= set(TASK_TYPES)
+    for name, cls in TASK_TYPES.items():
+        assert cls.model_fields["type"].default == name

@@ -11,9 +11,9 @@ from store.repository import SqlRepository
 from worker.evaluation import SpecCache, run_candidate
 
 SPEC = {
-    "name": "w_bend", "family": "bend", "task": "pose_change",
+    "name": "w_bend", "family": "bend",
     "clip": {"preparation": 0.3, "duration": 0.3, "decay": 0.2},
-    "pose_change": {"target": {"waist": -30}},
+    "task": {"type": "pose_change", "target": {"waist": -30}},
 }  # fmt: skip
 
 

@@ -1,4 +1,5 @@
-"""The momentum controller's parts: gain schedules and the optional CoP objective."""
+"""The controllers: the momentum controller's gain schedules, CoP objective and box; the
+protocol both controllers implement."""
 
 from __future__ import annotations
 
@@ -6,11 +7,18 @@ import numpy as np
 import pytest
 
 from sim.character import ROOT_DOF
-from sim.clip import Simulator
-from sim.controller import ControllerParams, GainScheduler, ease
+from sim.controllers import (
+    Controller,
+    ControllerParams,
+    FallController,
+    GainScheduler,
+    MomentumController,
+)
 from sim.dynamics import GRAVITY, momentum_bias, step_model
 from sim.errors import SpecError
+from sim.rollout import Rollout
 from sim.spec import parse_spec
+from sim.trajectory import ease
 
 
 def test_schedule_scales_and_sets_with_the_ease_weight():
@@ -30,7 +38,7 @@ def test_schedule_scales_and_sets_with_the_ease_weight():
     assert GainScheduler(base, [(1.0, 2.0, 0.2, {"b_l": 0.5})])(1.5).b_l == pytest.approx(0.5)
 
 
-def _moving_state(sim: Simulator) -> tuple[np.ndarray, np.ndarray]:
+def _moving_state(sim: Rollout) -> tuple[np.ndarray, np.ndarray]:
     """The standing pose with the trunk bending forward fast (as mid fast bend)."""
     ch = sim.character
     q = sim.q0.copy()
@@ -45,10 +53,9 @@ def test_cop_objective_brings_the_planned_cop_to_the_support_centre():
     """At a fast-bending state, the CoP implied by the QP's qdd* with the velocity-product
     terms (what ODE then measures, docs/physics.md) is nearer the support centre with b_p > 0
     than without, and nearer still with a larger b_p."""
-    spec = parse_spec({"name": "b", "task": "pose_change",
-                       "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
-                       "pose_change": {"target": {"waist": -90}}})
-    sim = Simulator(spec)
+    spec = parse_spec({"name": "b", "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
+                       "task": {"type": "pose_change", "target": {"waist": -90}}})
+    sim = Rollout(spec)
     try:
         a = sim.arrays
         q, qd = _moving_state(sim)
@@ -77,7 +84,7 @@ def test_cop_objective_brings_the_planned_cop_to_the_support_centre():
         sim.close()
 
 
-def _bend_state_model(sim: Simulator, qd_scale: float = 1.0):
+def _bend_state_model(sim: Rollout, qd_scale: float = 1.0):
     a = sim.arrays
     q, qd = _moving_state(sim)
     qd = qd * qd_scale
@@ -87,13 +94,13 @@ def _bend_state_model(sim: Simulator, qd_scale: float = 1.0):
     return q, qd, model, bias
 
 
-def _bend_sim() -> Simulator:
-    return Simulator(parse_spec({"name": "b", "task": "pose_change",
-                                 "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
-                                 "pose_change": {"target": {"waist": -90}}}))
+def _bend_sim() -> Rollout:
+    return Rollout(parse_spec({"name": "b",
+                               "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
+                               "task": {"type": "pose_change", "target": {"waist": -90}}}))
 
 
-def _plan(sim: Simulator, prm: ControllerParams, q, qd, model, bias, t: float = 0.3):
+def _plan(sim: Rollout, prm: ControllerParams, q, qd, model, bias, t: float = 0.3):
     """qdd* for `prm` at the state at time t, and the CoP it implies with the velocity terms."""
     (M, h, c, cd, A_L, A_H, Js, pts, sole_x, lo, hi, _cl) = model
     m = sim.character.total_mass
@@ -145,9 +152,30 @@ def test_cop_box_is_inactive_while_the_plan_is_inside():
 
 
 def test_cop_box_too_wide_is_a_spec_error():
-    spec = parse_spec({"name": "b", "task": "pose_change",
-                       "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
-                       "pose_change": {"target": {"waist": -90}},
-                       "schedule": [{"set": {"cop_box": 0.2}}]})
+    """Checked when the spec is parsed (once, by the spec model), not when it is simulated."""
     with pytest.raises(SpecError, match=r"schedule\.0\.set\.cop_box: must be below half"):
-        Simulator(spec)
+        parse_spec({"name": "b", "clip": {"preparation": 0.2, "duration": 0.4, "decay": 0.2},
+                       "task": {"type": "pose_change", "target": {"waist": -90}},
+                       "schedule": [{"set": {"cop_box": 0.2}}]})
+
+
+def test_both_controllers_follow_the_protocol():
+    sim = _bend_sim()
+    try:
+        for ctl in (sim.controller, sim.fall_controller):
+            assert isinstance(ctl, MomentumController | FallController)
+            proto: Controller = ctl  # the static protocol; the run-time contract below
+            proto.reset(None)
+            assert proto.lost is None
+    finally:
+        sim.close()
+
+
+def test_tracking_weights_come_from_the_character_file():
+    ch = _bend_sim().character
+    w = ControllerParams().weight_vector(ch)
+    np.testing.assert_array_equal(w, ch.tracking_weights)
+    # An override by joint name replaces only that joint's weight.
+    name = ch.hinge_names[0]
+    w2 = ControllerParams(weights={name: 0.7}).weight_vector(ch)
+    assert w2[0] == 0.7 and np.array_equal(w2[1:], ch.tracking_weights[1:])

@@ -35,22 +35,28 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from sim.character import ROOT_DOF, Character
-from sim.dynamics import GRAVITY
+from sim.controllers.base import Cmrt, Observation
+from sim.dynamics import (
+    GRAVITY,
+    WRENCH_NO_NORMAL_FORCE,
+    WRENCH_OK,
+    WRENCH_REASONS,
+    ModelArrays,
+    checked_inverse_dynamics,
+    momentum_bias,
+)
+from sim.trajectory import PoseTrajectory, ease
 
 QP_RATE = 60.0  # Hz
 COP_MARGIN = 0.02  # m, desired CoP kept this far inside the heel/toe edges
 QDD_REGULARISATION = 1e-4  # on |qdd|^2: keeps the KKT matrix definite
 CONSTRAINT_REGULARISATION = 1e-7  # straight knees in double support drop a rank of J_s
-FALL_STIFFNESS = 30.0  # N m / rad, the fall controller's low stiffness
-FALL_KD_STABILITY = 0.5  # explicit PD stays stable for kd dt / I below ~1: keep a margin
-
-#: Default tracking weights W by joint (paper 6.3.1: lower weights on arms let them move for
-#: angular momentum; ankles are lowered too so the balance objectives can use them).
-DEFAULT_TRACKING_WEIGHTS: dict[str, float] = {
-    "hip_r": 1.0, "knee_r": 1.0, "ankle_r": 0.3, "hip_l": 1.0, "knee_l": 1.0, "ankle_l": 0.3,
-    "waist": 1.0, "neck": 1.0, "shoulder_r": 0.3, "elbow_r": 0.3, "shoulder_l": 0.3,
-    "elbow_l": 0.3,
-}
+#: The controller has lost balance when its support wrench stays inadmissible this long (s)...
+WRENCH_VIOLATION_LIMIT = 0.25
+#: ... or when a heel or toe has lifted this high (m): the foot is rotating about an edge and
+#: the foot-fixed model no longer holds.
+FOOT_LIFT_LIMIT = 0.03
+CMRT_VELOCITY_STEP = 1e-3  # s, central difference for the CMRT's velocity
 
 
 @dataclass(frozen=True)
@@ -76,7 +82,8 @@ class ControllerParams:
     #: inside the heel and toe edges (an inequality: inactive while the plan's CoP is inside,
     #: so it leaves the CM's feedback alone; see docs/physics.md).
     cop_box: float = 0.0
-    weights: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_TRACKING_WEIGHTS))
+    #: Tracking weights W by joint name overriding the character file's (`joint.weight`).
+    weights: dict[str, float] = field(default_factory=dict)
 
     def with_overrides(self, values: dict[str, float]) -> ControllerParams:
         names = {f.name for f in fields(self)} - {"weights"}
@@ -89,50 +96,11 @@ class ControllerParams:
         return replace(self, **{k: getattr(self, k) * v for k, v in factors.items()})
 
     def weight_vector(self, character: Character) -> np.ndarray:
-        return np.array([self.weights.get(n, 1.0) for n in character.hinge_names])
-
-
-def ease(u: float) -> tuple[float, float, float]:
-    """Quintic ease-in-ease-out s(u) on [0, 1] and its first two derivatives in u (C2)."""
-    if u <= 0.0:
-        return 0.0, 0.0, 0.0
-    if u >= 1.0:
-        return 1.0, 0.0, 0.0
-    u2 = u * u
-    return (u2 * u * (10.0 - 15.0 * u + 6.0 * u2),
-            30.0 * u2 * (1.0 - 2.0 * u + u2),
-            60.0 * u * (1.0 - 3.0 * u + 2.0 * u2))
-
-
-class PoseTrajectory:
-    """Reference hinge trajectory: the standing pose, changed by motions in time order.
-
-    Each motion (start s, duration T, offsets in radians relative to the standing pose for some
-    joints) eases the named joints from their previous target to the new one.
-    """
-
-    def __init__(self, standing: np.ndarray, motions: list[tuple[float, float, dict[int, float]]]):
-        self.standing = standing.copy()
-        self.segments: list[tuple[float, float, int, float, float]] = []  # start, T, j, from, to
-        current = standing.copy()
-        for start, dur, targets in sorted(motions, key=lambda m: m[0]):
-            for j, off in targets.items():
-                goal = standing[j] + off
-                self.segments.append((start, dur, j, current[j], goal))
-                current[j] = goal
-
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        q = self.standing.copy()
-        qd = np.zeros_like(q)
-        qdd = np.zeros_like(q)
-        for start, dur, j, a, b in self.segments:
-            if t < start:
-                continue
-            s, ds, dds = ease((t - start) / dur)
-            q[j] = a + (b - a) * s
-            qd[j] = (b - a) * ds / dur
-            qdd[j] = (b - a) * dds / (dur * dur)
-        return q, qd, qdd
+        """W per hinge: the character file's tracking weights, with `weights` overriding."""
+        if not self.weights:
+            return character.tracking_weights
+        return np.array([self.weights.get(n, float(w)) for n, w in
+                         zip(character.hinge_names, character.tracking_weights, strict=True)])
 
 
 class GainScheduler:
@@ -170,22 +138,80 @@ class GainScheduler:
         return prm
 
 
-@dataclass
+def _as_pair(value: object) -> tuple[float, float]:
+    if isinstance(value, tuple | list | np.ndarray):
+        return float(value[0]), float(value[1]) if len(value) > 1 else 0.0
+    return float(value), 0.0
+
+
 class MomentumController:
-    """Solves the momentum QP; holds qdd* between solves."""
+    """The momentum QP at `qp_rate` and inverse dynamics every step (the Controller protocol).
 
-    character: Character
-    schedule: GainScheduler
-    trajectory: PoseTrajectory
-    qdd: np.ndarray = field(init=False)
+    Between QP solves it holds qdd*. Balance is lost (`lost` set) when the inverse dynamics'
+    support wrench stays outside the friction cone `mu` or its CoP outside the support for
+    WRENCH_VIOLATION_LIMIT, when it needs a pulling ground, or when a heel or toe lifts
+    FOOT_LIFT_LIMIT: brief violations are tolerated (docs/physics.md, "When balance is lost").
+    The reference is the CMRT: c_r = support centre + its displacement.
+    """
 
-    def __post_init__(self) -> None:
-        self.n = self.character.ndof
-        self.mass = self.character.total_mass
+    def __init__(self, character: Character, schedule: GainScheduler,
+                 trajectory: PoseTrajectory, arrays: ModelArrays | None = None,
+                 dt: float = 0.001, mu: float = 1.0, qp_rate: float = QP_RATE):
+        self.character = character
+        self.schedule = schedule
+        self.trajectory = trajectory
+        self.arrays = arrays or ModelArrays.from_character(character)
+        self.dt = dt
+        self.mu = mu
+        self.qp_every = max(1, int(round(1.0 / (qp_rate * dt))))
+        self.n = character.ndof
+        self.mass = character.total_mass
         self.qdd = np.zeros(self.n)
+        self.reference: Cmrt | None = None
+        self.c_ref: tuple[float, float] = (0.0, 0.0)
+        self.lost: str | None = None
+        self._k = 0
+        self._violation_steps = 0
+        self._disp = (0.0, 0.0)
 
-    def reset(self) -> None:
+    def reset(self, observation: Observation | None = None,
+              reference: Cmrt | None = None) -> None:
         self.qdd = np.zeros(self.n)
+        self.reference = reference
+        self.lost = None
+        self._k = 0
+        self._violation_steps = 0
+        self._disp = (0.0, 0.0)
+        self.c_ref = (0.0, 0.0)
+
+    def act(self, obs: Observation, t: float) -> np.ndarray:
+        """Hinge torques for this step; sets `lost` when the support wrench says so."""
+        lo, hi = obs.support
+        if self._k % self.qp_every == 0:
+            vel = (0.0, 0.0)
+            cmrt = self.reference
+            if cmrt is not None:
+                self._disp = _as_pair(cmrt(t))
+                nxt = _as_pair(cmrt(t + CMRT_VELOCITY_STEP))
+                prv = _as_pair(cmrt(t - CMRT_VELOCITY_STEP))
+                vel = ((nxt[0] - prv[0]) / (2 * CMRT_VELOCITY_STEP), 0.0)
+            s = 0.5 * (lo + hi)
+            self.c_ref = (s + self._disp[0], self._disp[1])
+            a = self.arrays
+            q, qd = obs.q, obs.qd
+            self.solve(t, q, qd, obs.c, obs.cd, obs.A_L, obs.A_H, obs.Js, (lo, hi), self.c_ref,
+                       vel, lambda: momentum_bias(q, qd, a.parent, a.a_par, a.a_chi, a.mass,
+                                                  a.feet, a.sole_local))
+        self._k += 1
+        tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.qdd, obs.sole_x,
+                                                   lo, hi, self.mu)
+        violations = self._violation_steps + 1 if code != WRENCH_OK else 0
+        self._violation_steps = violations
+        if code == WRENCH_NO_NORMAL_FORCE or violations * self.dt > WRENCH_VIOLATION_LIMIT:
+            self.lost = WRENCH_REASONS[code]
+        elif max(obs.points[:, 1].tolist()) > FOOT_LIFT_LIMIT:  # (the fastest max of 4)
+            self.lost = "foot_lift"
+        return tau
 
     def desired_rates(self, prm: ControllerParams, c: np.ndarray, cd: np.ndarray,
                       support: tuple[float, float], c_ref: tuple[float, float],
@@ -289,22 +315,3 @@ class MomentumController:
         K2[:n, k] = row
         K2[k, :n] = row
         return np.linalg.solve(K2, np.append(rhs, bound * r_f - r_p))[:k]
-
-
-class FallController:
-    """Low-stiffness, critically damped joint PD holding the pose at hand-over."""
-
-    def __init__(self, character: Character, dt: float):
-        ch = character
-        a_chi = ch.com0[1:] - ch.anchor0[1:]
-        inertia_about_joint = ch.inertia[1:] + ch.mass[1:] * (a_chi**2).sum(axis=1)
-        self.kp = FALL_STIFFNESS
-        kd = 2.0 * np.sqrt(self.kp * inertia_about_joint)
-        self.kd = np.minimum(kd, FALL_KD_STABILITY * inertia_about_joint / dt)
-        self.target = np.zeros(ch.n_hinges)
-
-    def engage(self, hinge_q: np.ndarray) -> None:
-        self.target = hinge_q.copy()
-
-    def torques(self, hinge_q: np.ndarray, hinge_qd: np.ndarray) -> np.ndarray:
-        return self.kp * (self.target - hinge_q) - self.kd * hinge_qd

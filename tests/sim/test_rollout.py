@@ -1,4 +1,4 @@
-"""Whole clips under the balance controller (real ODE simulations): the issue's acceptance.
+"""Whole clips through the rollout (real ODE simulations): the issue's acceptance.
 
 Each clip is simulated once per module (fixtures) and shared by the tests that look at it.
 CPU here is ~0.35 s per simulated second; the whole module simulates ~35 s of clips.
@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 import yaml
 
-from sim.clip import Simulator, evaluate, fall_penalty
+from sim.clip import Simulator
+from sim.physics import DT
+from sim.rollout import Rollout, evaluate, fall_penalty
 from sim.spec import GainSchedule, TaskSpec, load_spec, parse_spec
-from sim.world import DT
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -33,7 +34,7 @@ def example(stem: str, /, **changes) -> TaskSpec:
 
 def push_spec(force: float, direction: str) -> TaskSpec:
     return example("push", name=f"push_{direction}_{force:g}",
-                   push={"force": force, "direction": direction})
+                   task={"force": force, "direction": direction})
 
 
 def n_clip_steps(spec: TaskSpec) -> int:
@@ -43,7 +44,7 @@ def n_clip_steps(spec: TaskSpec) -> int:
 # ---- module fixtures: each clip simulated once -------------------------------------------------
 @pytest.fixture(scope="module")
 def quiet():
-    sim = Simulator(load_spec(EXAMPLES / "quiet_stance.yaml"))
+    sim = Rollout(load_spec(EXAMPLES / "quiet_stance.yaml"))
     ev = sim.run(traces=True)
     sim.close()
     return sim, ev
@@ -51,7 +52,7 @@ def quiet():
 
 @pytest.fixture(scope="module")
 def push_sim():
-    sim = Simulator(load_spec(EXAMPLES / "push.yaml"))
+    sim = Rollout(load_spec(EXAMPLES / "push.yaml"))
     yield sim
     sim.close()
 
@@ -125,8 +126,8 @@ def test_quiet_stance_cp_in_middle_half_of_support(quiet):
 def test_push_forward_100n_survived(push_sim, push_forward):
     ev = push_forward
     spec = push_sim.spec
-    assert spec.push.force == 100.0 and spec.push.direction == "forward"
-    assert spec.push_window() == (1.0, 0.2)
+    assert spec.task.force == 100.0 and spec.task.direction == "forward"
+    assert spec.task.window(spec.clip) == (1.0, 0.2)
     print(f"push forward 100 N: objective {ev.objective:.3f}, max |e| "
           f"{ev.max_abs_error * 1e2:.2f} cm")
     assert not ev.fell, ev.fall_reason
@@ -140,12 +141,12 @@ def test_push_backward_100n_survived(push_backward):
           f"{ev.max_abs_error * 1e2:.2f} cm")
     assert not ev.fell, ev.fall_reason
     assert ev.steps == n_clip_steps(spec)
-    sim = Simulator(spec)
+    sim = Rollout(spec)
     _recovers(sim, ev, sign=-1.0)
     sim.close()
 
 
-def _recovers(sim: Simulator, ev, sign: float) -> None:
+def _recovers(sim: Rollout, ev, sign: float) -> None:
     tr = ev.traces
     t_push0, t_push1 = 1.0, 1.2
     before = tr.t <= t_push0
@@ -249,7 +250,7 @@ def test_real_falls_rank_worse_than_non_falls_and_earlier_worse(
 
 def test_traces_of_a_fall_show_it(push_sim):
     spec = push_spec(400.0, "forward")
-    sim = Simulator(spec)
+    sim = Rollout(spec)
     quick = sim.run()
     shown = sim.run(traces=True)
     sim.close()
@@ -261,6 +262,17 @@ def test_traces_of_a_fall_show_it(push_sim):
     tr = shown.traces
     assert len(tr.t) == shown.steps
     assert tr.cm[-1, 1] < tr.cm[0, 1] - 0.05
+    # The fall's direction is the push's, the same with or without traces.
+    assert shown.fall_direction == quick.fall_direction == "forward"
+    assert shown.task_success is None  # a push has no goal beyond balance
+    # The recorded fall ends on the side it was said to fall to.
+    assert tr.cm[-1, 0] > tr.support[-1]
+
+
+def test_backward_fall_direction():
+    ev = evaluate(push_spec(400.0, "backward"))
+    assert ev.fell and ev.fall_direction == "backward"
+    assert ev.to_dict()["fall_direction"] == "backward"
 
 
 # ---- determinism and reset ---------------------------------------------------------------------
@@ -325,10 +337,10 @@ def test_traces_consistent(push_forward, quiet):
 
 # ---- a scaled character ------------------------------------------------------------------------
 def test_scaled_character_stands():
-    spec = parse_spec({"name": "tall", "task": "quiet_stance",
+    spec = parse_spec({"name": "tall", "task": {"type": "quiet_stance"},
                        "character": {"height": 1.9, "mass": 90.0},
                        "clip": {"preparation": 0.0, "duration": 2.0, "decay": 0.0}})
-    sim = Simulator(spec)
+    sim = Rollout(spec)
     ev = sim.run(traces=True)
     sim.close()
     assert sim.character.total_mass == pytest.approx(90.0)
@@ -336,3 +348,8 @@ def test_scaled_character_stands():
     assert not ev.fell, ev.fall_reason
     assert abs(ev.traces.cm[-1, 0] - ev.traces.support[-1]) < 0.01
     assert np.nanmax(np.abs(ev.traces.error)) <= sim.support_length / 4
+
+
+def test_simulator_is_the_rollout():
+    """Callers written before the reshape (optim, worker, cli) use sim.clip.Simulator."""
+    assert Simulator is Rollout

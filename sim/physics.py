@@ -1,0 +1,571 @@
+"""The ODE world of a planar character and its props: bodies, joints, contacts, reset.
+
+`Physics(character, props=())` builds the world once; `reset(q, qd)` puts the character in any
+state and every prop back in its initial state (run-time joints removed), so one Physics serves
+every run of a clip. Nothing here decides anything: the rollout (`sim.rollout`) asks for
+contacts, applies torques and forces, steps, and reads back.
+
+Choices, with the PyODE traps they avoid (docs/physics.md):
+- `world.step` (dense LCP), not `quickStep`: quickStep's ground force was 0.3-2 % off, and the
+  balance objective is a ground-force measurement.
+- World CFM is tiny (1e-6) so hinges stay rigid; ground contacts get the paper's soft CFM 7e-5
+  through `ContactSoftCFM`, `ContactApprox1` so that mu is a friction coefficient, bounce 0.
+- The ground is the plane y = 0. Foot contacts are made directly at each foot's heel and toe
+  points (one per edge) from the model's kinematics instead of colliding boxes: 2 contacts per
+  foot, none redundant, no collision callback on the character's hot path.
+- Hinges are attached (child, parent): ODE's angle is body1 minus body2, so `getAngle()` is the
+  child's angle relative to the parent (counter-clockwise positive) and `addTorque(t)` puts +t on
+  the child and -t on the parent. Axes are set in the zero pose, so ODE's zero is the model's.
+- Contact joints live in JointGroups; feedback is switched off on each before `empty()`
+  (feedback + empty() aborts the process). Run-time joints (a catch's fixed joint, a hanging
+  prop's hinges) are kept in Python lists for as long as they hold (PyODE destroys a joint
+  when its Python object dies) and have their feedback switched off before they are dropped.
+- One Plane2DJoint on the character's root keeps its chain of z-axis hinges in the plane. Every
+  free prop has its own Plane2DJoint, and after each step its orientation is re-projected onto
+  a rotation about z and its x/y angular velocity zeroed (as ODE's demo_plane2d does: the joint
+  does not correct rotational drift out of the plane). A prop fixed to the character or hanging
+  from a hinge is kept in the plane by those joints, so its own Plane2DJoint is switched off
+  (`attach(None, None)`) while they hold.
+- Props collide (one `SimpleSpace`, category bits) with the ground, with each other and with
+  the character's contact geoms (`geoms` in the character file: hands, forearms); the
+  character's geoms collide with props only (the feet's ground contacts are made as above).
+  ODE's box contacts come in pairs mirrored across the plane (z = +-depth / 2); only those at
+  z >= 0 are kept and moved to z = 0 (trap 5). Prop contacts: mu = PROP_FRICTION_MU (or the
+  prop's own) along the in-plane tangent, the same soft CFM as the feet, bounce 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import ode
+
+from sim.character import ROOT_DOF, Character
+from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics
+from sim.errors import SimError
+from sim.props import PROP_DEPTH, Hanging, PropDef
+
+DT = 0.001  # s, simulation step
+WORLD_CFM = 1e-6
+WORLD_ERP = 0.2
+CONTACT_SOFT_CFM = 7e-5
+FRICTION_MU = 1.0  # foot-ground friction coefficient
+CONTACT_MARGIN = 0.0005  # m: a heel/toe within this height of the ground gets a contact
+#: Divergence: a body faster than this (m/s) or spinning faster than this (rad/s), or any
+#: non-finite state, is not a simulation any more.
+MAX_SPEED = 100.0
+MAX_SPIN = 1000.0
+
+# Collision categories (ODE category / collide bits).
+_GROUND, _CHARACTER, _PROP = 1, 2, 4
+_CAPSULE_ALONG_Y = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)  # local z -> world y
+
+#: Contact kinds reported by `Physics.contact_list`.
+FOOT_GROUND, PROP_GROUND, PROP_PROP, PROP_CHARACTER = (
+    "foot-ground", "prop-ground", "prop-prop", "prop-character")
+
+
+class DivergenceError(SimError):
+    """ODE's state became non-finite or absurdly fast: the step is not physics any more."""
+
+
+@dataclass(frozen=True)
+class ContactForce:
+    """One contact after a step: the force (N, world x, y) on body `a` at `point` (m);
+    `b` is None for the ground."""
+
+    kind: str
+    a: str
+    b: str | None
+    point: tuple[float, float]
+    force: tuple[float, float]
+
+
+class Prop:
+    """A prop's ODE objects: its body, geom, plane joint and (if hanging) its rod or chain."""
+
+    def __init__(self, world: ode.World, space: ode.Space, d: PropDef):
+        self.definition = d
+        self.name = d.name
+        self.body = ode.Body(world)
+        mass = ode.Mass()
+        i = d.inertia
+        mass.setParameters(d.mass, 0.0, 0.0, 0.0, i, i, i, 0.0, 0.0, 0.0)
+        self.body.setMass(mass)
+        if d.shape == "box":
+            self.geom = ode.GeomBox(space, (d.size[0], d.size[1], PROP_DEPTH))
+        elif d.shape == "sphere":
+            self.geom = ode.GeomSphere(space, d.size[0])
+        else:
+            self.geom = ode.GeomCapsule(space, d.size[0], d.size[1])
+        self.geom.setBody(self.body)
+        if d.shape == "capsule":
+            self.geom.setOffsetRotation(_CAPSULE_ALONG_Y)
+        self.geom.setCategoryBits(_PROP)
+        self.geom.setCollideBits(_GROUND | _CHARACTER | _PROP)
+        self.plane = ode.Plane2DJoint(world)
+        self.links: list[ode.Body] = []
+        self.hang_joints: list[ode.HingeJoint] = []
+        self._link_rest: list[tuple[float, float]] = []
+        self.reset()
+        if d.hanging is not None:
+            self._hang(world, d.hanging)
+
+    def _hang(self, world: ode.World, h: Hanging) -> None:
+        """A rod (one hinge about z at the anchor) or a chain of `links` bodies spaced evenly
+        on the anchor-prop segment, each hinged to the one above, the prop to the last."""
+        (ax, ay), (px, py) = h.anchor, self.definition.position
+        n = h.links
+        length = math.hypot(px - ax, py - ay) / max(n, 1)
+        for k in range(n):
+            f = (k + 0.5) / n
+            link = ode.Body(world)
+            m = ode.Mass()
+            i = h.link_mass * length * length / 12.0
+            m.setParameters(h.link_mass, 0.0, 0.0, 0.0, i, i, i, 0.0, 0.0, 0.0)
+            link.setMass(m)
+            self.links.append(link)
+            self._link_rest.append((ax + f * (px - ax), ay + f * (py - ay)))
+        self._reset_links()
+        chain = [*self.links, self.body]
+        for k, b in enumerate(chain):
+            j = ode.HingeJoint(world)
+            j.attach(b, chain[k - 1] if k > 0 else ode.environment)
+            f = k / max(n, 1)
+            j.setAnchor((ax + f * (px - ax), ay + f * (py - ay), 0.0))
+            j.setAxis((0.0, 0.0, 1.0))
+            self.hang_joints.append(j)
+        self.plane.attach(None, None)  # the hinges keep it in the plane
+
+    def _reset_links(self) -> None:
+        for link, (x, y) in zip(self.links, self._link_rest, strict=True):
+            link.setPosition((x, y, 0.0))
+            link.setQuaternion((1.0, 0.0, 0.0, 0.0))
+            link.setLinearVel((0.0, 0.0, 0.0))
+            link.setAngularVel((0.0, 0.0, 0.0))
+
+    @property
+    def free(self) -> bool:
+        """Neither hanging nor attached: kept in the plane by its own Plane2DJoint."""
+        return self.plane.getBody(0) is not None
+
+    def reset(self) -> None:
+        d = self.definition
+        b = self.body
+        b.setPosition((d.position[0], d.position[1], 0.0))
+        half = 0.5 * d.angle
+        b.setQuaternion((math.cos(half), 0.0, 0.0, math.sin(half)))
+        b.setLinearVel((d.velocity[0], d.velocity[1], 0.0))
+        b.setAngularVel((0.0, 0.0, d.angular_velocity))
+        b.setForce((0.0, 0.0, 0.0))
+        b.setTorque((0.0, 0.0, 0.0))
+        self._reset_links()
+        if d.hanging is None:
+            self.plane.attach(self.body, ode.environment)
+
+    def close(self) -> None:
+        for j in self.hang_joints:
+            j.setFeedback(False)
+        self.hang_joints.clear()
+
+    def pose(self) -> tuple[float, float, float]:
+        return _pose(self.body)
+
+    def reproject(self) -> None:
+        """Keep a free prop's orientation a rotation about z (ODE's demo_plane2d)."""
+        w, _x, _y, z = self.body.getQuaternion()
+        n = math.hypot(w, z)
+        self.body.setQuaternion((w / n, 0.0, 0.0, z / n))
+        wz = self.body.getAngularVel()[2]
+        self.body.setAngularVel((0.0, 0.0, wz))
+
+
+def _pose(body: ode.Body) -> tuple[float, float, float]:
+    x, y, _ = body.getPosition()
+    R = body.getRotation()
+    return x, y, math.atan2(R[3], R[0])
+
+
+class Physics:
+    """One character and its props in an ODE world. Build once; `reset(q, qd)` for each run."""
+
+    def __init__(self, character: Character, arrays: ModelArrays | None = None,
+                 props: tuple[PropDef, ...] | list[PropDef] = ()):
+        self.character = character
+        self.arrays = arrays or ModelArrays.from_character(character)
+        self.world = ode.World()
+        self.world.setGravity((0.0, -GRAVITY, 0.0))
+        self.world.setERP(WORLD_ERP)
+        self.world.setCFM(WORLD_CFM)
+        ch = character
+        self.bodies: list[ode.Body] = []
+        for b in range(ch.n_bodies):
+            body = ode.Body(self.world)
+            mass = ode.Mass()
+            i = float(ch.inertia[b])
+            mass.setParameters(float(ch.mass[b]), 0.0, 0.0, 0.0, i, i, i, 0.0, 0.0, 0.0)
+            body.setMass(mass)
+            body.setPosition((float(ch.com0[b, 0]), float(ch.com0[b, 1]), 0.0))
+            self.bodies.append(body)
+        self.hinges: list[ode.HingeJoint] = []
+        for b in range(1, ch.n_bodies):
+            j = ode.HingeJoint(self.world)
+            j.attach(self.bodies[b], self.bodies[ch.parent[b]])
+            j.setAnchor((float(ch.anchor0[b, 0]), float(ch.anchor0[b, 1]), 0.0))
+            j.setAxis((0.0, 0.0, 1.0))
+            lo, hi = ch.limits[b - 1]
+            j.setParam(ode.ParamLoStop, float(lo))
+            j.setParam(ode.ParamHiStop, float(hi))
+            self.hinges.append(j)
+        self._torque_limits = ch.torque_limits.tolist()
+        self.plane = ode.Plane2DJoint(self.world)
+        self.plane.attach(self.bodies[0], ode.environment)
+        self.contact_group = ode.JointGroup()
+        self.contacts: list[tuple[ode.ContactJoint, int, float]] = []
+        self._contact = ode.Contact()
+        # Friction only along x (ContactFDir1 with mu2 = 0 drops the out-of-plane friction
+        # row, which the planar root constraint makes redundant).
+        self._contact.setMode(
+            ode.ContactApprox1 | ode.ContactSoftCFM | ode.ContactMu2 | ode.ContactFDir1)
+        self._contact.setMu(FRICTION_MU)
+        self._contact.setMu2(0.0)
+        self._contact.setFDir1((1.0, 0.0, 0.0))
+        self._contact.setBounce(0.0)
+        self._contact.setSoftCFM(CONTACT_SOFT_CFM)
+        self.q = np.zeros(ch.ndof)
+        self.qd = np.zeros(ch.ndof)
+        # Collision space: props against the ground, each other and the character's geoms.
+        self.space = ode.SimpleSpace()
+        self.ground = ode.GeomPlane(self.space, (0.0, 1.0, 0.0), 0.0)
+        self.ground.setCategoryBits(_GROUND)
+        self.ground.setCollideBits(_PROP)
+        self.geoms: dict[str, ode.GeomObject] = {}
+        self._geom_owner: dict[int, str] = {id(self.ground): "ground"}
+        for k, g in enumerate(ch.geoms):
+            geom = self._character_geom(g)
+            self.geoms[g.name or f"{ch.body_names[g.body]}.geom{k}"] = geom
+            self._geom_owner[id(geom)] = ch.body_names[g.body]
+        self.props: list[Prop] = [Prop(self.world, self.space, d) for d in props]
+        names = list(ch.body_names)
+        for p in self.props:
+            if p.name in names:
+                raise SimError(f"prop {p.name!r}: the name is taken by a body or prop")
+            names.append(p.name)
+            self._geom_owner[id(p.geom)] = p.name
+        self._prop_by_name = {p.name: p for p in self.props}
+        self._body_index = {n: i for i, n in enumerate(ch.body_names)}
+        self.prop_group = ode.JointGroup()
+        self.prop_contacts: list[tuple[ode.ContactJoint, str, str, str | None,
+                                       tuple[float, float]]] = []
+        self._prop_contact = ode.Contact()
+        self._prop_contact.setMode(
+            ode.ContactApprox1 | ode.ContactSoftCFM | ode.ContactMu2 | ode.ContactFDir1)
+        self._prop_contact.setMu2(0.0)
+        self._prop_contact.setBounce(0.0)
+        self._prop_contact.setSoftCFM(CONTACT_SOFT_CFM)
+        #: Joints made at run time (a catch): (joint, prop name, body name), kept referenced.
+        self.attachments: list[tuple[ode.FixedJoint, str, str]] = []
+
+    def _character_geom(self, g) -> ode.GeomObject:
+        body = self.bodies[g.body]
+        com = self.character.com0[g.body]
+        if g.shape == "sphere":
+            geom = ode.GeomSphere(self.space, g.radius)
+            mid = g.a
+        else:
+            dx, dy = g.b[0] - g.a[0], g.b[1] - g.a[1]
+            length = math.hypot(dx, dy)
+            geom = ode.GeomCapsule(self.space, g.radius, length)
+            ux, uy = dx / length, dy / length
+            mid = (0.5 * (g.a[0] + g.b[0]), 0.5 * (g.a[1] + g.b[1]))
+        geom.setBody(body)
+        # Body frames are parallel to the world's in the zero pose, where the file's geometry is.
+        geom.setOffsetPosition((mid[0] - float(com[0]), mid[1] - float(com[1]), 0.0))
+        if g.shape == "capsule":
+            geom.setOffsetRotation((-uy, 0.0, ux, ux, 0.0, uy, 0.0, 1.0, 0.0))
+        geom.setCategoryBits(_CHARACTER)
+        geom.setCollideBits(_PROP)
+        return geom
+
+    # ---- state ------------------------------------------------------------------------
+    def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        """Put every body in the state (q, qd) and every prop in its initial state, with no
+        contact and no run-time joint, without rebuilding the world."""
+        self.clear_contacts()
+        self.detach_all()
+        a = self.arrays
+        qd = np.zeros_like(q) if qd is None else qd
+        alpha, p, o = forward_kinematics(q, a.parent, a.a_par, a.a_chi)
+        omega = np.empty(len(alpha))
+        omega[0] = qd[2]
+        vel = np.empty_like(p)
+        vel[0] = qd[:2]
+        for b in range(1, len(alpha)):
+            par = a.parent[b]
+            omega[b] = omega[par] + qd[ROOT_DOF + b - 1]
+            ro = o[b] - p[par]
+            vo = vel[par] + omega[par] * np.array([-ro[1], ro[0]])
+            rc = p[b] - o[b]
+            vel[b] = vo + omega[b] * np.array([-rc[1], rc[0]])
+        for b, body in enumerate(self.bodies):
+            half = 0.5 * float(alpha[b])
+            body.setPosition((float(p[b, 0]), float(p[b, 1]), 0.0))
+            body.setQuaternion((math.cos(half), 0.0, 0.0, math.sin(half)))
+            body.setLinearVel((float(vel[b, 0]), float(vel[b, 1]), 0.0))
+            body.setAngularVel((0.0, 0.0, float(omega[b])))
+            body.setForce((0.0, 0.0, 0.0))
+            body.setTorque((0.0, 0.0, 0.0))
+        for prop in self.props:
+            prop.reset()
+        self.read_state()
+
+    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Read q, qd from ODE: root CoM, root angle, then hinge angles and rates."""
+        root = self.bodies[0]
+        x, y, _ = root.getPosition()
+        R = root.getRotation()
+        vx, vy, _ = root.getLinearVel()
+        q, qd = self.q, self.qd
+        q[0], q[1], q[2] = x, y, math.atan2(R[3], R[0])
+        qd[0], qd[1], qd[2] = vx, vy, root.getAngularVel()[2]
+        for i, j in enumerate(self.hinges):
+            q[ROOT_DOF + i] = j.getAngle()
+            qd[ROOT_DOF + i] = j.getAngleRate()
+        return q, qd
+
+    def body_state(self, b: int) -> tuple[float, float, float]:
+        """(x, y, angle) of body b's CoM as ODE has it."""
+        return _pose(self.bodies[b])
+
+    def pose_names(self) -> list[str]:
+        """Names of the rows of `poses()`: the character's bodies, then props (and links)."""
+        names = list(self.character.body_names)
+        for p in self.props:
+            names.append(p.name)
+            names += [f"{p.name}.link{k}" for k in range(len(p.links))]
+        return names
+
+    def poses(self) -> list[tuple[float, float, float]]:
+        """(x, y, angle) of every body, prop and chain link (rows as `pose_names()`)."""
+        out = [_pose(b) for b in self.bodies]
+        for p in self.props:
+            out.append(_pose(p.body))
+            out += [_pose(link) for link in p.links]
+        return out
+
+    def prop(self, name: str) -> Prop:
+        try:
+            return self._prop_by_name[name]
+        except KeyError:
+            raise SimError(f"unknown prop {name!r}") from None
+
+    def _all_bodies(self) -> list[ode.Body]:
+        out = list(self.bodies)
+        for p in self.props:
+            out.append(p.body)
+            out += p.links
+        return out
+
+    def energy(self) -> float:
+        """Kinetic plus gravitational potential energy (J) of every body, prop and link."""
+        e = 0.0
+        for b in self._all_bodies():
+            m = b.getMass()
+            mass, inertia = m.mass, m.I[2][2]
+            vx, vy, vz = b.getLinearVel()
+            w = b.getAngularVel()
+            e += 0.5 * mass * (vx * vx + vy * vy + vz * vz) + 0.5 * inertia * w[2] ** 2
+            e += mass * GRAVITY * b.getPosition()[1]
+        return e
+
+    def momentum(self) -> tuple[float, float, float]:
+        """Total linear momentum (kg m/s, x and y) and angular momentum about the world origin
+        (kg m^2/s, z) of every body, prop and link."""
+        px = py = lz = 0.0
+        for b in self._all_bodies():
+            m = b.getMass()
+            vx, vy, _ = b.getLinearVel()
+            x, y, _ = b.getPosition()
+            px += m.mass * vx
+            py += m.mass * vy
+            lz += m.mass * (x * vy - y * vx) + m.I[2][2] * b.getAngularVel()[2]
+        return px, py, lz
+
+    def diverged(self, qd: np.ndarray | None = None) -> str | None:
+        """Why the state is not physics any more (non-finite, too fast), else None. With `qd`
+        (the character's velocities just read) the character is judged by |qd| (SI units:
+        m/s and rad/s together) against MAX_SPIN, and only the props are read from ODE."""
+        if qd is not None:
+            s = float(qd @ qd)
+            if not s < MAX_SPIN * MAX_SPIN:
+                return ("non-finite character state" if not math.isfinite(s)
+                        else "character moving impossibly fast")
+            bodies = [p.body for p in self.props]
+            bodies += [link for p in self.props for link in p.links]
+        else:
+            bodies = self._all_bodies()
+        for b in bodies:
+            v = b.getLinearVel()
+            w = b.getAngularVel()[2]
+            x = b.getPosition()
+            if not all(math.isfinite(c) for c in (*v, w, *x)):
+                return "non-finite state"
+            if math.hypot(v[0], v[1]) > MAX_SPEED or abs(w) > MAX_SPIN:
+                return "a body moving impossibly fast"
+        return None
+
+    # ---- actuation ---------------------------------------------------------------------
+    def apply_torques(self, tau: np.ndarray) -> None:
+        """Hinge torques (N m, +t on the child), each clamped to its joint's torque limit."""
+        # Python min/max on the listed floats: the same clamp as np.clip, without its ~9 us
+        # per-step call overhead (this runs every 1 ms step).
+        for j, t, lim in zip(self.hinges, tau.tolist(), self._torque_limits, strict=True):
+            j.addTorque(min(max(t, -lim), lim))
+
+    def add_force(self, b: int, fx: float, fy: float = 0.0) -> None:
+        """An external force (N) at body b's CoM for the next step."""
+        self.bodies[b].addForce((fx, fy, 0.0))
+
+    # ---- run-time joints ---------------------------------------------------------------
+    def attach_prop(self, prop: str, body: str) -> ode.FixedJoint:
+        """Weld prop `prop` to character body `body` in their present relative pose (a catch).
+        The joint holds until `detach_all()` or the next `reset()`."""
+        p = self.prop(prop)
+        try:
+            b = self.bodies[self._body_index[body]]
+        except KeyError:
+            raise SimError(f"unknown body {body!r}") from None
+        j = ode.FixedJoint(self.world)
+        j.attach(p.body, b)
+        j.setFixed()
+        j.setFeedback(True)
+        self.attachments.append((j, prop, body))
+        p.plane.attach(None, None)  # the character's joints keep it in the plane now
+        return j
+
+    def attached(self, prop: str) -> bool:
+        return any(name == prop for _j, name, _b in self.attachments)
+
+    def attachment_forces(self) -> list[tuple[str, str, tuple[float, float]]]:
+        """After a step: (prop, body, force (N) of the weld on the prop) per attachment."""
+        return [(pn, bn, tuple(j.getFeedback()[0][:2])) for j, pn, bn in self.attachments]
+
+    def detach_all(self) -> None:
+        """Drop every run-time joint (feedback off first: PyODE trap 1)."""
+        for j, prop, _b in self.attachments:
+            j.setFeedback(False)
+            j.attach(None, None)
+            p = self.prop(prop)
+            if p.definition.hanging is None:
+                p.plane.attach(p.body, ode.environment)
+        self.attachments.clear()
+
+    # ---- contacts ------------------------------------------------------------------------
+    def make_contacts(self, points: np.ndarray, feet_of_points: list[int]) -> None:
+        """Ground contacts at the given world points (k, 2) of the given foot bodies."""
+        c = self._contact
+        for (px, py), b in zip(points.tolist(), feet_of_points, strict=True):
+            if py > CONTACT_MARGIN:
+                continue
+            c.setContactGeomParams((px, py, 0.0), (0.0, 1.0, 0.0), -py)
+            j = ode.ContactJoint(self.world, self.contact_group, c)
+            j.attach(self.bodies[b], ode.environment)
+            j.setFeedback(True)
+            self.contacts.append((j, b, px))
+
+    def _near(self, _arg: object, g1: ode.GeomObject, g2: ode.GeomObject) -> None:
+        b1, b2 = g1.getBody(), g2.getBody()
+        if b1 is not None and b2 is not None and ode.areConnected(b1, b2):
+            return
+        found = ode.collide(g1, g2)
+        if not found:
+            return
+        n1, n2 = self._geom_owner[id(g1)], self._geom_owner[id(g2)]
+        if n1 not in self._prop_by_name:  # the prop first: forces are reported on it
+            g1, g2, b1, b2, n1, n2 = g2, g1, b2, b1, n2, n1
+            flip = True
+        else:
+            flip = False
+        if n2 == "ground":
+            kind, other = PROP_GROUND, None
+        elif n2 in self._prop_by_name:
+            kind, other = PROP_PROP, n2
+        else:
+            kind, other = PROP_CHARACTER, n2
+        mu = self._prop_by_name[n1].definition.friction
+        if other in self._prop_by_name:
+            mu = min(mu, self._prop_by_name[other].definition.friction)
+        c = self._prop_contact
+        c.setMu(mu)
+        for con in found:
+            pos, normal, depth, _ga, _gb = con.getContactGeomParams()
+            if pos[2] < -1e-9:
+                continue  # the mirrored half of a box's contacts (trap 5)
+            if flip:
+                normal = (-normal[0], -normal[1], -normal[2])
+            nx, ny = normal[0], normal[1]
+            norm = math.hypot(nx, ny)
+            if norm < 1e-9:
+                continue
+            nx, ny = nx / norm, ny / norm
+            c.setContactGeomParams((pos[0], pos[1], 0.0), (nx, ny, 0.0), depth, g1, g2)
+            c.setFDir1((-ny, nx, 0.0))
+            j = ode.ContactJoint(self.world, self.prop_group, c)
+            j.attach(b1, b2 if b2 is not None else ode.environment)
+            j.setFeedback(True)
+            self.prop_contacts.append((j, kind, n1, other, (pos[0], pos[1])))
+
+    def collide_props(self) -> None:
+        """Contact joints for every prop touching the ground, a prop or a character geom."""
+        if self.props:
+            self.space.collide(None, self._near)
+
+    def step(self) -> None:
+        """One DT step of the world; free props are re-projected onto the plane after it."""
+        self.world.step(DT)
+        if self.props:
+            for p in self.props:
+                if p.free:
+                    p.reproject()
+
+    def contact_forces(self) -> tuple[float, float, float]:
+        """After a step: total normal force, total tangential force (N) of the feet's ground
+        contacts and their CoP x (NaN without contact), from the contact joints' feedback
+        (force on the body in f1)."""
+        fy_sum = fx_sum = mx = 0.0
+        for j, _b, px in self.contacts:
+            f1 = j.getFeedback()[0]
+            fy_sum += f1[1]
+            fx_sum += f1[0]
+            mx += f1[1] * px
+        cop = mx / fy_sum if fy_sum > 1e-6 else math.nan
+        return fy_sum, fx_sum, cop
+
+    def contact_list(self) -> list[ContactForce]:
+        """After a step: every contact with its force on the first body (feet and props)."""
+        names = self.character.body_names
+        out = [ContactForce(FOOT_GROUND, names[b], None, (px, 0.0),
+                            tuple(j.getFeedback()[0][:2])) for j, b, px in self.contacts]
+        out += [ContactForce(kind, a, b, pos, tuple(j.getFeedback()[0][:2]))
+                for j, kind, a, b, pos in self.prop_contacts]
+        return out
+
+    def clear_contacts(self) -> None:
+        for j, _b, _px in self.contacts:
+            j.setFeedback(False)
+        self.contacts.clear()
+        self.contact_group.empty()
+        if self.prop_contacts:
+            for j, *_rest in self.prop_contacts:
+                j.setFeedback(False)
+            self.prop_contacts.clear()
+            self.prop_group.empty()
+
+    def close(self) -> None:
+        """Release every joint with feedback safely (feedback off before it is dropped)."""
+        self.clear_contacts()
+        self.detach_all()
+        for p in self.props:
+            p.close()

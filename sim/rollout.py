@@ -1,0 +1,256 @@
+"""The rollout: one task spec simulated under the balance controller, measured, and scored.
+
+`Rollout(spec)` builds the character, the task, the physics (with the task's props) and the
+controllers once; `run(cmrt)` resets them and simulates the clip (preparation + task + decay)
+at 1 ms steps. The loop only coordinates: observe (state and model terms), check for a fall,
+act (the active controller's torques), task events, step, measure, record.
+
+Measurements, every step: the centre of pressure p(t) from the feet's contact feedback, the
+support centre s(t) (middle of the feet's heel-toe interval), the CP error e = p - s. The
+objective is the 2-norm of e over the steps that had ground contact (metres), plus the task's
+penalty (e.g. a ball not caught).
+
+A fall ends the clip: a body other than a foot touching the ground, the CM below
+FALL_CM_FRACTION of its standing height, or the controller losing balance (see
+`sim.controllers.momentum.MomentumController`). The objective of a fall is `fall_penalty`: at
+least sqrt(steps) x the support length, more than any non-fall objective can be (|e| never
+exceeds the support length), and larger the earlier the fall, so every fall ranks worse than
+every non-fall and later falls rank better. The fall's direction is the side of the support
+centre where the CM's capture point c_x + cd_x sqrt(c_y / g) lies at the fall.
+With traces on, a clip whose controller lost balance goes on under the fall controller until
+a body touches the ground or the CM drops, to show the fall (frames at FRAME_RATE for replay).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from sim.character import ROOT_DOF, Character
+from sim.controllers import ControllerParams, FallController, GainScheduler, MomentumController
+from sim.controllers.base import Cmrt, Controller, Observation
+from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics, step_model
+from sim.evaluation import Evaluation
+from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
+from sim.recording import FRAME_EVERY, Recorder
+from sim.spec import TaskSpec
+from sim.trajectory import PoseTrajectory
+
+FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
+MIN_CONTACT_FORCE = 1.0  # N: below this total normal force a step has no CP measurement
+DIVERGENCE_CHECK_STEPS = 10  # the state is checked for divergence every this many steps
+
+
+def standing_state(ch: Character, arrays: ModelArrays) -> np.ndarray:
+    """q of the standing pose: feet flat with the right heel where the zero pose has it; with
+    `balance_standing`, the body leans at the ankles so the CM is over the support centre."""
+    hinge = ch.standing_offsets.copy()
+    feet_chains = []
+    for f in ch.feet:
+        chain, b = [], int(f)
+        while b > 0:
+            chain.append(b - 1)
+            b = int(ch.parent[b])
+        feet_chains.append(chain)  # the foot's own hinge first
+
+    def place(phi: float) -> tuple[np.ndarray, float]:
+        q = np.zeros(ch.ndof)
+        q[2] = phi
+        h = hinge.copy()
+        for chain in feet_chains:
+            own, others = chain[0], chain[1:]
+            h[own] = -(phi + sum(h[j] for j in others))  # foot flat on the ground
+        q[ROOT_DOF:] = h
+        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
+        f0 = int(ch.feet[0])
+        heel = p[f0] + _rot(alpha[f0], arrays.heel_local[0])
+        q[:2] += ch.heel0[0] - heel
+        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
+        cx = float((ch.mass * p[:, 0]).sum() / ch.mass.sum())
+        centre = 0.5 * (ch.heel0[:, 0].min() + ch.toe0[:, 0].max())
+        return q, cx - centre
+
+    if not ch.balance_standing:
+        return place(0.0)[0]
+    a, b = 0.0, -0.05
+    fa, fb = place(a)[1], place(b)[1]
+    for _ in range(30):  # secant on the lean angle
+        if abs(fb) < 1e-10 or fb == fa:
+            break
+        a, b, fa = b, b - fb * (b - a) / (fb - fa), fb
+        fb = place(b)[1]
+    return place(b)[0]
+
+
+def _rot(a: float, v: np.ndarray) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+def fall_penalty(fall_time: float, length: float, steps: int, support_length: float) -> float:
+    """Objective of a clip that fell at `fall_time` s of `length`: in (F0, 2 F0], F0 being an
+    upper bound of any non-fall objective, sqrt(steps) x support length."""
+    f0 = math.sqrt(steps) * support_length
+    return f0 * (2.0 - min(max(fall_time / length, 0.0), 1.0))
+
+
+def fall_direction(c: np.ndarray, cd: np.ndarray, support_centre: float) -> str:
+    """"forward" (+x) or "backward": the side of the support centre where the CM's capture
+    point c_x + cd_x sqrt(c_y / g) lies."""
+    xi = c[0] + cd[0] * math.sqrt(max(c[1], 0.0) / GRAVITY)
+    return "forward" if xi >= support_centre else "backward"
+
+
+class Rollout:
+    """A task spec's physics, task and controllers, built once and reset for each run."""
+
+    def __init__(self, spec: TaskSpec):
+        self.spec = spec
+        ch = spec.load_character()
+        self.character = ch
+        self.support_length = ch.support_length
+        self.arrays = ModelArrays.from_character(ch)
+        self.task = spec.task.build(spec, ch)
+        self.physics = Physics(ch, self.arrays, self.task.props)
+        self.q0 = standing_state(ch, self.arrays)
+        # Start with the ground contacts already loaded: sink the body by the static
+        # penetration of a soft contact, depth = (m g / contacts) / k with the contact
+        # stiffness k = ERP / (dt CFM); otherwise the first steps score a loading transient.
+        contacts = 2 * len(ch.feet)
+        k_contact = WORLD_ERP / (DT * CONTACT_SOFT_CFM)
+        self.q0[1] -= ch.total_mass * GRAVITY / contacts / k_contact
+        _, p0, _ = forward_kinematics(self.q0, self.arrays.parent, self.arrays.a_par,
+                                      self.arrays.a_chi)
+        self.cm0 = (ch.mass[:, None] * p0).sum(axis=0) / ch.mass.sum()
+        self.params = ControllerParams().with_overrides(dict(spec.controller))
+        entries = []
+        for s in spec.schedule:
+            start, end = spec.schedule_window(s)
+            entries.append((start, end, s.ramp, dict(s.scale), dict(s.set)))
+        self.schedule = GainScheduler(self.params, entries)
+        self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self.task.motions)
+        self.controller = MomentumController(ch, self.schedule, self.trajectory, self.arrays,
+                                             dt=DT, mu=FRICTION_MU)
+        self.fall_controller = FallController(ch, DT)
+        self.steps = int(round(spec.clip.length / DT))
+
+    @property
+    def world(self) -> Physics:
+        """The physics (the name this attribute had before the reshape)."""
+        return self.physics
+
+    def run(self, cmrt: Cmrt | None = None, traces: bool = False) -> Evaluation:
+        """Simulate the clip with the CMRT (None: no anticipation) and score it."""
+        cpu0 = time.process_time()
+        ch, a, phys, task = self.character, self.arrays, self.physics, self.task
+        n_steps = self.steps
+        phys.reset(self.q0)
+        task.reset(phys)
+        momentum = self.controller
+        active: Controller = momentum
+        active.reset(None, cmrt)
+        events = task.events
+        foot_of_point = np.repeat(ch.feet, 2).tolist()
+        cm_floor = FALL_CM_FRACTION * self.cm0[1]
+        rec = Recorder(n_steps, phys) if traces else None
+        sq_sum = 0.0
+        max_e = 0.0
+        contact_steps = 0
+        fall_time = None
+        fall_reason = None
+        direction = None
+        lost = False
+        c_ref = (self.cm0[0], 0.0)
+        k_done = 0
+        margs = a.args() + (a.feet, a.sole_local, a.heel_local, a.toe_local, a.point_body,
+                            a.point_local, a.point_radius)
+        read_state, diverged = phys.read_state, phys.diverged
+        has_props = bool(phys.props)
+        for k in range(n_steps):
+            t = k * DT
+            q, qd = read_state()
+            if k % DIVERGENCE_CHECK_STEPS == 0:
+                why = diverged(qd)
+                if why is not None:
+                    raise DivergenceError(f"{self.spec.name}: the simulation diverged at "
+                                          f"t = {t:.3f} s ({why})")
+            (M, h, c, cd, A_L, A_H, Js, pts, sole_x, lo, hi,
+             clearance) = step_model(q, qd, *margs)
+            s = 0.5 * (lo + hi)
+            physical = None
+            if clearance < 0.0:
+                physical = "body_contact"
+            elif c[1] < cm_floor:
+                physical = "cm_drop"
+            if physical is not None:
+                if fall_time is None:
+                    fall_time, fall_reason = t, physical
+                    direction = fall_direction(c, cd, s)
+                break
+            obs = Observation(q, qd, M, h, c, cd, A_L, A_H, Js, pts, sole_x, (lo, hi))
+            tau = active.act(obs, t)
+            if not lost:
+                c_ref = momentum.c_ref
+                if active.lost is not None:
+                    lost = True
+                    fall_time, fall_reason = t, f"balance_lost:{active.lost}"
+                    direction = fall_direction(c, cd, s)
+                    if rec is None:
+                        break
+                    active = self.fall_controller
+                    active.reset(obs)
+                    tau = active.act(obs, t)
+            if rec is not None and k % FRAME_EVERY == 0:
+                rec.frame(t, c, c_ref, (lo, hi))
+            phys.apply_torques(tau)
+            if events:
+                task.before_step(phys, t)
+            phys.make_contacts(pts, foot_of_point)
+            if has_props:
+                phys.collide_props()
+            phys.step()
+            fy, _fx, cop = phys.contact_forces()
+            if events:
+                task.after_step(phys, t + DT)
+            phys.clear_contacts()
+            k_done = k + 1
+            e = math.nan
+            if fy > MIN_CONTACT_FORCE and not lost:
+                e = cop - s
+                sq_sum += e * e
+                max_e = max(max_e, abs(e))
+                contact_steps += 1
+            if rec is not None:
+                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c, c_ref)
+        phys.clear_contacts()
+        error_norm = math.sqrt(sq_sum)
+        fell = fall_time is not None
+        objective = (fall_penalty(fall_time, self.spec.clip.length, n_steps, self.support_length)
+                     if fell else error_norm)
+        penalty = task.penalty(phys, math.sqrt(n_steps) * self.support_length)
+        if penalty:
+            objective += penalty
+        out_traces = out_frames = None
+        if rec is not None:
+            out_traces, out_frames = rec.result(k_done)
+        return Evaluation(
+            objective=objective, fell=fell, fall_time=fall_time, fall_reason=fall_reason,
+            error_norm=error_norm, max_abs_error=max_e, sim_seconds=k_done * DT,
+            cpu_seconds=time.process_time() - cpu0, steps=k_done, contact_steps=contact_steps,
+            fall_direction=direction, task_success=task.success(phys), task_penalty=penalty,
+            traces=out_traces, frames=out_frames,
+        )
+
+    def close(self) -> None:
+        self.physics.close()
+
+
+def evaluate(spec: TaskSpec, cmrt: Cmrt | None = None, traces: bool = False) -> Evaluation:
+    """Simulate one clip of `spec` with the CMRT callable (None: no anticipation)."""
+    sim = Rollout(spec)
+    try:
+        return sim.run(cmrt, traces=traces)
+    finally:
+        sim.close()

@@ -1,0 +1,22 @@
+"""The registry of task types, resolved by the spec's `task.type`.
+
+Each entry is one module's `TaskConfig` subclass (see `sim.tasks.base` for the contract). A new
+task type is a module plus one line here.
+"""
+
+from __future__ import annotations
+
+from sim.tasks.base import Task, TaskConfig
+from sim.tasks.pose_change import PoseChangeConfig
+from sim.tasks.push import PushConfig
+from sim.tasks.quiet_stance import QuietStanceConfig
+from sim.tasks.sequence import SequenceConfig
+
+TASK_TYPES: dict[str, type[TaskConfig]] = {
+    "quiet_stance": QuietStanceConfig,
+    "push": PushConfig,
+    "pose_change": PoseChangeConfig,
+    "sequence": SequenceConfig,
+}
+
+__all__ = ["TASK_TYPES", "Task", "TaskConfig"]

@@ -1,0 +1,101 @@
+"""What a task type is: its spec model (`TaskConfig`) and its run-time object (`Task`).
+
+A task type is one module of `sim.tasks` holding a `TaskConfig` subclass (a pydantic model
+with a `type: Literal[...]` tag; its fields are the spec's `task:` block) and a `Task`
+subclass, plus its entry in `sim.tasks.TASK_TYPES`. The spec's `task` field is the
+discriminated union of every registered config.
+
+Contract of a `TaskConfig`:
+  * `check(spec, character)`: every rule that needs the rest of the spec or the character
+    (joint and body names, windows inside the clip); raises ValueError whose message starts
+    with the field's path (`task.target: ...`). Called once, when the spec is parsed.
+  * `parameters()`: the numbers placing the task within its family (library keys).
+  * `build(spec, character) -> Task`: the run-time object (pure Python, no ODE).
+
+Contract of a `Task` (one per simulator; `reset` before each run):
+  * `props`: the PropDefs the physics must hold (built once per simulator).
+  * `motions`: reference pose changes (start s, duration s, {hinge index: offset rad}).
+  * `reset(physics)`; `before_step(physics, t)` (events: external forces, a throw) runs after
+    the controller's torques are applied and before the step; `after_step(physics, t)` (a
+    catch, a hit) runs after the step while its contacts are still readable. Both are called
+    only when `events` is True.
+  * `success(physics) -> bool | None` at the end (None: the task has no goal beyond balance);
+    `penalty(physics, scale) -> float` (>= 0) is added to the objective; `scale` is the
+    objective's fall-penalty unit (sqrt(steps) x support length).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+from sim.props import PropDef
+from sim.specbase import StrictModel
+from sim.trajectory import MotionDef
+
+if TYPE_CHECKING:
+    from sim.character import Character
+
+#: A pose target's angles (degrees) must stay inside this range.
+MAX_TARGET_DEGREES = 180.0
+
+
+def check_pose(pose: dict[str, float], character: Character, where: str) -> None:
+    """Joint names known to the character, angles in degrees within the joint's range."""
+    for name, deg in pose.items():
+        if name not in character.hinge_names:
+            raise ValueError(f"{where}: unknown joint {name!r}; joints are "
+                             f"{', '.join(character.hinge_names)}")
+        if not -MAX_TARGET_DEGREES <= deg <= MAX_TARGET_DEGREES:
+            raise ValueError(f"{where}: joint {name!r}: {deg} degrees is outside "
+                             f"[{-MAX_TARGET_DEGREES:g}, {MAX_TARGET_DEGREES:g}]")
+
+
+def pose_offsets(pose: dict[str, float], character: Character) -> dict[int, float]:
+    """{hinge index: radians} of a pose target in degrees."""
+    return {character.hinge_index(k): math.radians(v) for k, v in pose.items()}
+
+
+class TaskConfig(StrictModel):
+    """Base of every task type's spec block; see the module docstring."""
+
+    type: str
+
+    def check(self, spec: Any, character: Character) -> None:
+        return None
+
+    def parameters(self) -> dict[str, float]:
+        return {}
+
+    def build(self, spec: Any, character: Character) -> Task:
+        raise NotImplementedError
+
+
+class Task:
+    """Run-time task: props, motions, events, success and penalty (module docstring)."""
+
+    events = False
+    props: tuple[PropDef, ...] = ()
+
+    def __init__(self, spec: Any, character: Character):
+        self.spec = spec
+        self.character = character
+
+    @property
+    def motions(self) -> list[MotionDef]:
+        return []
+
+    def reset(self, physics: Any) -> None:
+        return None
+
+    def before_step(self, physics: Any, t: float) -> None:
+        return None
+
+    def after_step(self, physics: Any, t: float) -> None:
+        return None
+
+    def success(self, physics: Any) -> bool | None:
+        return None
+
+    def penalty(self, physics: Any, scale: float) -> float:
+        return 0.0
