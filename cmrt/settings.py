@@ -21,6 +21,7 @@ CMRT_MAX_BODY_BYTES       largest accepted request body               1000000
 CMRT_API_TOKEN            bearer token the API requires; unset: open  None
 CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
 CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
+CMRT_SIMULATION_WORKERS   API processes for POST /simulations clips   1
 ========================  ==========================================  =========================
 
 The SQLite file's folder is created on demand by `store.db.make_engine` (or
@@ -67,6 +68,9 @@ class Settings(BaseSettings):
     #: Base of the absolute URLs the API returns (e.g. https://cmrt.example); None: the API
     #: returns paths (`/jobs/<id>`). Never taken from the request's Host header.
     public_url: Annotated[str | None, Field(pattern=r"^https?://[^\s/?#]+(/[^\s?#]*)?$")] = None
+
+    #: Processes of the API's own pool for what-if clips (POST /simulations).
+    simulation_workers: Annotated[int, Field(ge=1, le=64)] = 1
 
     @field_validator("api_token", "public_url", mode="before")
     @classmethod

@@ -24,8 +24,9 @@ from cmrt.settings import Settings, get_settings
 from service.deps import Services, no_nul
 from service.errors import install_error_handlers
 from service.openapi import install_openapi
-from service.routers import bases, cmrts, health, jobs, pages
+from service.routers import bases, cmrts, health, jobs, pages, simulations
 from service.security import HttpEdge
+from service.simulations import SimulationPool
 from store import Repository, open_repository
 from worker.config import WorkerConfig
 from worker.executors import CeleryExecutor, GenerationExecutor, LocalPoolExecutor
@@ -59,7 +60,10 @@ def create_app(
     repo = repo or open_repository(settings.database_url)
     executor = executor or make_executor(config)
     svc = Services(settings=settings, repo=repo, executor=executor,
-                   runner=JobRunner(repo, executor, config), run_drivers=run_drivers)
+                   runner=JobRunner(repo, executor, config),
+                   simulations=SimulationPool(settings.simulation_workers,
+                                              settings.eval_time_limit),
+                   run_drivers=run_drivers)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> Any:
@@ -68,6 +72,7 @@ def create_app(
         yield
         svc.runner.stop(timeout=5)
         svc.executor.close()
+        svc.simulations.close()
 
     app = FastAPI(
         title="CMRT service",
@@ -82,7 +87,7 @@ def create_app(
     app.state.services = svc
     install_error_handlers(app)
     install_openapi(app, settings)
-    for module in (jobs, cmrts, bases, health, pages):
+    for module in (jobs, cmrts, bases, simulations, health, pages):
         app.include_router(module.router)
     static = resources.files("service").joinpath("static")
     app.mount("/static", StaticFiles(directory=str(static)), name="static")

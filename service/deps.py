@@ -12,6 +12,7 @@ from fastapi import Depends, Request
 
 from cmrt.settings import Settings
 from service.errors import ApiError
+from service.simulations import SimulationPool
 from store import Repository
 from worker.executors import GenerationExecutor
 from worker.runner import JobRunner
@@ -25,6 +26,8 @@ class Services:
     repo: Repository
     executor: GenerationExecutor
     runner: JobRunner
+    #: What-if clips (POST /simulations).
+    simulations: SimulationPool
     #: False: jobs are stored but not driven (tests of the HTTP layer alone).
     run_drivers: bool = True
 
