@@ -195,7 +195,6 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
     from store import open_repository
     from worker import faults
     from worker.celery_app import make_celery
-    from worker.config import WorkerConfig
     from worker.executors import CeleryExecutor
 
     env = dict(os.environ, CMRT_DATABASE_URL=scratch.db_url, CMRT_BROKER_URL=scratch.broker,
@@ -204,7 +203,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
         env.pop(k, None)
     repo = open_repository(scratch.db_url)
     settings = Settings(database_url=scratch.db_url, broker_url=scratch.broker)
-    cfg = WorkerConfig(settings)
+    cfg = settings
     app = make_celery(scratch.broker, scratch.broker, cfg)
     ex = CeleryExecutor(cfg, app)
     log = open(scratch.dir / f"worker{workers}.log", "wb")  # noqa: SIM115

@@ -1,1 +1,1 @@
-"""CMRT service: command line entry point and settings."""
+"""The base package: the one settings module (`cmrt.settings`)."""

@@ -1,4 +1,5 @@
-"""The one settings factory: every process reads its configuration from `CMRT_*` variables.
+"""The one settings module: every process (CLI, API, job drivers, Celery workers) reads its
+configuration from `CMRT_*` variables through `get_settings()`; nothing else reads them.
 
 Nothing is built at import time; call `get_settings()` (cached per process) or construct
 `Settings(...)` directly (tests, tools). Environment variables (and a `.env` file in the working
@@ -18,11 +19,28 @@ CMRT_LEASE_SECONDS        driver lease time-to-live, seconds          30
 CMRT_API_HOST             HTTP bind address                           127.0.0.1
 CMRT_API_PORT             HTTP port                                   8000
 CMRT_MAX_BODY_BYTES       largest accepted request body               1000000
+CMRT_VISIBILITY_TIMEOUT   Redis re-delivers an unacked message after  3600 (s)
+CMRT_POLL_INTERVAL        driver: longest wait between store polls    0.2 (s)
+CMRT_STALL_TIMEOUT        driver: re-send unresolved candidates after  eval_time_limit + 60 (s)
+                          this long without a finished evaluation
+CMRT_BROKER_DEADLINE      driver: fail the job after the broker was   120 (s)
+                          unreachable this long
+CMRT_SCAN_INTERVAL        runner: look for orphaned jobs every        2 (s)
+CMRT_QUEUE                Celery queue of evaluation tasks            cmrt
+CMRT_WORKER_CONCURRENCY   `cmrt worker` processes                     None (the CPUs)
+CMRT_LOG_LEVEL            log level of `cmrt serve` / `cmrt worker`   INFO
+CMRT_MAX_JOB_SIM_SECONDS  ceiling of a job's budget (simulated s:     50000
+                          evaluations x clip length; worker.admission)
+CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 8
+                          has in the queue at once (fair share)
 CMRT_API_TOKEN            bearer token the API requires; unset: open  None
 CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
 CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
 CMRT_SIMULATION_WORKERS   API processes for POST /simulations clips   1
 ========================  ==========================================  =========================
+
+Invariant (checked): eval_time_limit < visibility_timeout, so Redis never re-delivers a message
+whose task is still legitimately running.
 
 The SQLite file's folder is created on demand by `store.db.make_engine` (or
 `Settings.ensure_data_dir()`), never at import.
@@ -32,7 +50,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -61,6 +79,33 @@ class Settings(BaseSettings):
     api_host: str = "127.0.0.1"
     api_port: Annotated[int, Field(ge=1, le=65535)] = 8000
     max_body_bytes: Annotated[int, Field(ge=1)] = 1_000_000
+    #: Redis re-delivers an unacknowledged message after this many seconds.
+    visibility_timeout: Annotated[float, Field(gt=0.0)] = 3600.0
+    #: Job driver: longest wait between two polls of the store for finished evaluations
+    #: (shorter near the expected end of a generation: worker.executors.PollSchedule).
+    poll_interval: Annotated[float, Field(gt=0.0)] = 0.2
+    #: Job driver: when no evaluation finished for this long, the unresolved ones are sent
+    #: again (idempotent), so a message lost with a broker restart never hangs a job.
+    #: None (default) means eval_time_limit + 60 s (filled in on load).
+    stall_timeout: Annotated[float | None, Field(gt=0.0)] = None
+    #: Job driver: a job fails once the broker has been unreachable for this long.
+    broker_deadline: Annotated[float, Field(gt=0.0)] = 120.0
+    #: How often a runner looks for queued/running jobs without a live driver.
+    scan_interval: Annotated[float, Field(gt=0.0)] = 2.0
+    #: Celery queue of evaluation tasks.
+    queue: Annotated[str, Field(min_length=1, max_length=200)] = "cmrt"
+    #: Processes of a `cmrt worker` (None: one per CPU).
+    worker_concurrency: Annotated[int | None, Field(ge=1, le=256)] = None
+    #: Ceiling of one job's budget in simulated seconds (worker.admission): above it a job is
+    #: refused (422).
+    max_job_sim_seconds: Annotated[float, Field(gt=0.0)] = 50_000.0
+    #: Celery: the most evaluations of one job sent and not yet resolved at any time, so jobs
+    #: share the queue (a small job waits behind at most this many of a large one's); about
+    #: twice the evaluation processes keeps them all busy between the driver's polls.
+    dispatch_window: Annotated[int, Field(ge=1, le=10_000)] = 8
+    #: Log level of `cmrt serve` and `cmrt worker`.
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"] = "INFO"
+
     #: Bearer token of the HTTP API (`Authorization: Bearer <token>`); None: no authentication.
     api_token: SecretStr | None = None
     #: With a token: True leaves the read-only endpoints open to everyone, False closes them too.
@@ -72,16 +117,38 @@ class Settings(BaseSettings):
     #: Processes of the API's own pool for what-if clips (POST /simulations).
     simulation_workers: Annotated[int, Field(ge=1, le=64)] = 1
 
+    @field_validator("worker_concurrency", mode="before")
+    @classmethod
+    def _zero_is_unset(cls, v: object) -> object:
+        return None if v in (0, "0", "") else v
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _upper(cls, v: object) -> object:
+        return v.upper() if isinstance(v, str) else v
+
     @field_validator("api_token", "public_url", mode="before")
     @classmethod
     def _empty_is_unset(cls, v: object) -> object:
         return None if v == "" else v
 
     @model_validator(mode="after")
-    def _default_database(self) -> Settings:
+    def _defaults_and_invariants(self) -> Settings:
         if not self.database_url:
             self.database_url = f"sqlite:///{self.data_dir / DB_FILE_NAME}"
+        if self.stall_timeout is None:
+            self.stall_timeout = self.eval_time_limit + 60.0
+        if self.eval_time_limit >= self.visibility_timeout:
+            raise ValueError(
+                "CMRT_EVAL_TIME_LIMIT must be below CMRT_VISIBILITY_TIMEOUT "
+                f"({self.eval_time_limit:g} >= {self.visibility_timeout:g})"
+            )
         return self
+
+    @property
+    def celery_result_backend(self) -> str | None:
+        """The Celery result backend: CMRT_RESULT_BACKEND, else the broker."""
+        return self.result_backend or self.broker_url
 
     @property
     def distributed(self) -> bool:

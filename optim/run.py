@@ -1,6 +1,6 @@
-"""The optimisation loop: CMA-ES ask/tell over a spec's CMRT, with checkpoints and resume.
+"""`cmrt optimize`'s run: the shared loop of `optim.loop` with a checkpoint file and resume.
 
-`optimize(spec, executor, *, seed, ...)`:
+`optimize(spec, executor, *, seed, ...)` (the steps are `optim.loop`'s, written once):
   1. Start (`initial_point`): x0 (warm start, full params) or the flat spline; with a `basis`
      the search is over the basis' box [0, 1]^k (x0 is projected into it; default the box
      centre) and candidates are decoded to full params with the target's duration pinned
@@ -31,20 +31,24 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from optim._io import atomic_write_bytes
-from optim.cmaes import CmaOptimizer, GenerationStats, StopRules
-from optim.errors import CheckpointError, EvaluationError
+from optim.cmaes import CmaOptimizer, GenerationStats
+from optim.errors import CheckpointError
 from optim.executors import EvalOutcome, Executor
+from optim.loop import (
+    CANCELLED,
+    SearchSpace,
+    final_evaluation,
+    new_optimizer,
+    run_generations,
+)
 from optim.objective import SimObjective, spec_json
 from optim.result import OptimizationResult
-from optim.spline import check_params, flat_params
 
 if TYPE_CHECKING:
     from optim.pca import Basis
     from sim.spec import TaskSpec
 
 CHECKPOINT_FORMAT = "cmrt-checkpoint/1"
-#: Stop rule recorded when the progress callback asks to stop.
-CANCELLED = "cancelled"
 
 Progress = Callable[[GenerationStats], "bool | None"]
 Objective = Callable[[np.ndarray], "EvalOutcome | float"]
@@ -108,19 +112,37 @@ def initial_point(
     x0: Sequence[float] | np.ndarray | None = None,
     basis: Basis | None = None,
 ) -> np.ndarray:
-    """CMA-ES start in the search space used by `optimize` (use it in other drivers too).
+    """CMA-ES start in the search space used by `optimize` (`SearchSpace.of(...).start`)."""
+    return SearchSpace.of(spec, basis, x0).start
 
-    Full space: x0 (checked, clipped into [0, 1]) or the flat spline. Reduced space: x0
-    projected into the basis box (`Basis.encode` at the spec's duration), or the box centre
-    (u = 0.5, about the family mean) when no x0 is given. Raises BasisError if the basis does
-    not fit the spec.
-    """
-    if basis is None:
-        return flat_params(spec) if x0 is None else check_params(spec, x0)
-    basis.check_spec(spec)
-    if x0 is None:
-        return np.full(basis.k, 0.5)
-    return basis.encode(check_params(spec, x0), spec.clip.duration)
+
+class BatchEvaluator:
+    """`CandidateEvaluator` over an optim `Executor`: `executor.map(objective, candidates)`."""
+
+    def __init__(self, executor: Executor, objective: Objective) -> None:
+        self.executor, self.objective = executor, objective
+
+    def evaluate(self, generation: int, candidates: Sequence[np.ndarray]) -> list[EvalOutcome]:
+        return self.executor.map(self.objective, list(candidates))
+
+
+class CheckpointFile:
+    """`RunState` in a checkpoint file (atomic pickle; see the module docstring)."""
+
+    def __init__(self, path: Path, meta: dict[str, Any], *, resume: bool, t0: float) -> None:
+        self.path, self.meta, self.resume, self.t0 = path, meta, resume, t0
+        self.wall_before = 0.0
+
+    def restore(self) -> CmaOptimizer | None:
+        if not (self.resume and self.path.exists()):
+            return None
+        opt, self.wall_before = _resume(self.path, self.meta)
+        return opt
+
+    def save(self, opt: CmaOptimizer, generation: int, stats: GenerationStats,
+             candidates: Sequence[np.ndarray], wall_seconds: float) -> None:
+        save_checkpoint(self.path, opt, self.meta,
+                        self.wall_before + time.perf_counter() - self.t0)
 
 
 def optimize(
@@ -142,86 +164,41 @@ def optimize(
     """
     t0 = time.perf_counter()
     fn: Objective = objective if objective is not None else SimObjective(spec)
-    ckpt = None if checkpoint is None else Path(checkpoint)
-    start = initial_point(spec, x0=x0, basis=basis)
-    if basis is not None:
-        duration = spec.clip.duration
-        dim = basis.k
-
-        def to_full(x: np.ndarray) -> np.ndarray:
-            return basis.decode(x, duration)
-
-    else:
-        dim = spec.cmrt_dimension
-
-        def to_full(x: np.ndarray) -> np.ndarray:
-            return np.clip(np.asarray(x, dtype=float), 0.0, 1.0)
-
-    meta = _checkpoint_meta(spec, seed, basis, dim)
-    opt: CmaOptimizer | None = None
-    wall_before = 0.0
-    if resume and ckpt is not None and ckpt.exists():
-        opt, wall_before = _resume(ckpt, meta)
+    space = SearchSpace.of(spec, basis, x0)
+    state = None
+    if checkpoint is not None:
+        meta = _checkpoint_meta(spec, seed, basis, space.dim)
+        state = CheckpointFile(Path(checkpoint), meta, resume=resume, t0=t0)
+    opt = state.restore() if state is not None else None
     if opt is None:
-        opt = CmaOptimizer(
-            dim,
-            seed=seed,
-            x0=start,
-            sigma0=spec.optimize.sigma0,
-            popsize=spec.optimize.popsize,
-            rules=StopRules.from_config(spec.optimize),
-        )
-
-    stop_rule = opt.stop()
-    while stop_rule is None:
-        xs = opt.ask()
-        outs = executor.map(fn, [to_full(x) for x in xs])
-        if len(outs) != len(xs):
-            raise EvaluationError(
-                f"executor returned {len(outs)} outcomes for {len(xs)} candidates"
-            )
-        if all(o.error is not None for o in outs):
-            raise EvaluationError(
-                f"every candidate of generation {opt.iterations + 1} failed; first error: "
-                f"{outs[0].error}"
-            )
-        stats = opt.tell(xs, [o.objective for o in outs])
-        if ckpt is not None:
-            save_checkpoint(ckpt, opt, meta, wall_before + time.perf_counter() - t0)
-        if progress is not None and progress(stats) is True:
-            stop_rule = CANCELLED
-            break
-        stop_rule = opt.stop()
-
-    best_x = opt.best_x
-    assert best_x is not None  # at least one generation was told
-    best_full = to_full(best_x)
-    base_out, best_out = executor.map(fn, [flat_params(spec), best_full])
-    for label, out in (("baseline (flat spline)", base_out), ("best CMRT", best_out)):
-        if out.error is not None:
-            raise EvaluationError(f"final evaluation of the {label} failed: {out.error}")
-
+        opt = new_optimizer(spec, space, seed)
+    evaluator = BatchEvaluator(executor, fn)
+    stop_rule = run_generations(opt, space, evaluator, state, after_generation=progress)
+    final = final_evaluation(opt, space, evaluator)
+    wall_before = 0.0 if state is None else state.wall_before
     return OptimizationResult.build(
         spec,
-        best_full,
-        objective=best_out.objective,
-        fell=best_out.fell,
-        baseline_objective=base_out.objective,
-        baseline_fell=base_out.fell,
+        final.best_params,
+        objective=final.best.objective,
+        fell=final.best.fell,
+        baseline_objective=final.flat.objective,
+        baseline_fell=final.flat.fell,
         evaluations=opt.evaluations,
         iterations=opt.iterations,
         stop_rule=stop_rule,
         wall_seconds=wall_before + time.perf_counter() - t0,
         seed=seed,
         history=[h.to_dict() for h in opt.history],
-        basis_id=None if basis is None else basis.id,
-        reduced_params=None if basis is None else best_x,
+        basis_id=space.basis_id,
+        reduced_params=None if basis is None else final.best_x,
     )
 
 
 __all__ = [
     "CANCELLED",
     "CHECKPOINT_FORMAT",
+    "BatchEvaluator",
+    "CheckpointFile",
     "initial_point",
     "load_checkpoint",
     "optimize",

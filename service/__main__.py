@@ -1,5 +1,7 @@
+"""`python -m service [options]` is `cmrt serve [options]` (an entry point)."""
+
 import sys
 
-from service.cli import serve_main
+from cli.main import main
 
-sys.exit(serve_main(sys.argv[1:]))
+sys.exit(main(["serve", *sys.argv[1:]]))

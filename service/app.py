@@ -28,20 +28,10 @@ from service.routers import bases, cmrts, health, jobs, pages, simulations
 from service.security import HttpEdge
 from service.simulations import SimulationPool
 from store import Repository, open_repository
-from worker.config import WorkerConfig
-from worker.executors import CeleryExecutor, GenerationExecutor, LocalPoolExecutor
+from worker.executors import GenerationExecutor, make_generation_executor
 from worker.runner import JobRunner
 
 log = logging.getLogger("cmrt.service")
-
-
-def make_executor(config: WorkerConfig) -> GenerationExecutor:
-    if config.distributed:
-        from worker.celery_app import make_celery
-
-        return CeleryExecutor(config, make_celery(config.broker_url, config.result_backend,
-                                                  config))
-    return LocalPoolExecutor(config)
 
 
 def create_app(
@@ -49,18 +39,16 @@ def create_app(
     *,
     repo: Repository | None = None,
     executor: GenerationExecutor | None = None,
-    config: WorkerConfig | None = None,
     run_drivers: bool = True,
 ) -> FastAPI:
     """Build the app. Defaults: settings from the environment (`cmrt.settings.get_settings`),
     repository migrated to the newest schema, executor chosen by the broker setting.
     `run_drivers=False`: jobs are accepted and stored but not driven (HTTP-layer tests)."""
     settings = settings or get_settings()
-    config = config or WorkerConfig(settings)
     repo = repo or open_repository(settings.database_url)
-    executor = executor or make_executor(config)
+    executor = executor or make_generation_executor(settings)
     svc = Services(settings=settings, repo=repo, executor=executor,
-                   runner=JobRunner(repo, executor, config),
+                   runner=JobRunner(repo, executor, settings),
                    simulations=SimulationPool(settings.simulation_workers,
                                               settings.eval_time_limit),
                    run_drivers=run_drivers)

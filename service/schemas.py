@@ -43,10 +43,20 @@ class JobRequest(BaseModel):
     basis: Annotated[str, Field(max_length=64)] | None = None
 
 
+class JobBudget(BaseModel):
+    """The most the job may cost (worker.admission): evaluations x clip seconds."""
+
+    evaluations: int
+    clip_seconds: float
+    sim_seconds: float
+    ceiling_sim_seconds: float | None
+
+
 class JobAccepted(BaseModel):
     id: str
     url: str
     status: str
+    budget: JobBudget
 
 
 class JobOut(BaseModel):
@@ -108,6 +118,9 @@ class CmrtSummary(BaseModel):
     character: dict[str, Any]
     objective: float
     objective_without: float | None
+    #: "search": the best candidate CMA-ES found; "flat": the flat spline (no anticipation)
+    #: did better, so the entry is the flat spline.
+    winner: str
     fell: bool
     job_id: str | None
     created_at: datetime

@@ -11,14 +11,11 @@ from store import Repository
 
 
 def job_cmrt_id(repo: Repository, job: Any) -> str | None:
-    """Id of the library CMRT a finished job added, or None.
-
-    The one place that looks it up; a linear scan of the family's entries until the store
-    has a method for it."""
+    """Id of the library CMRT a finished job added, or None (store lookup by job id)."""
     if not job.terminal:
         return None
-    items, _ = repo.list_cmrts(job.family, limit=1000)
-    return next((c.id for c in items if c.job_id == job.id), None)
+    rec = repo.job_cmrt(job.id)
+    return None if rec is None else rec.id
 
 
 def job_out(job: Any, request: Request, cmrt_id: str | None = None) -> dict[str, Any]:
@@ -74,6 +71,7 @@ def cmrt_out(r: Any, request: Request, full: bool = False) -> dict[str, Any]:
         "character": r.character,
         "objective": r.objective,
         "objective_without": r.objective_without,
+        "winner": r.winner,
         "fell": r.fell,
         "job_id": r.job_id,
         "created_at": r.created_at,

@@ -5,7 +5,9 @@
     job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                           family=spec.family_name, task=spec.task_type, seed=1, workers=2)
 
-See `store.repository.Repository` for the contract. No web or queue imports here.
+The contract is `store.repository.Repository`, split by aggregate: `store.jobs` (jobs, driver
+lease), `store.evaluations` (generations, evaluations), `store.library` (CMRT library, PCA
+bases); `store.sql` holds what their SQLAlchemy implementations share. No web or queue imports.
 """
 
 from __future__ import annotations
@@ -19,9 +21,9 @@ from store.records import (
     TERMINAL_STATUSES,
     TRANSITIONS,
     BasisRecord,
+    CmrtEntry,
     CmrtRecord,
     EvaluationClaim,
-    EvaluationOutcome,
     EvaluationRecord,
     GenerationCounts,
     GenerationRecord,
@@ -47,10 +49,10 @@ __all__ = [
     "TERMINAL_STATUSES",
     "TRANSITIONS",
     "BasisRecord",
+    "CmrtEntry",
     "CmrtRecord",
     "Conflict",
     "EvaluationClaim",
-    "EvaluationOutcome",
     "EvaluationRecord",
     "GenerationCounts",
     "GenerationRecord",

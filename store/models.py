@@ -160,6 +160,8 @@ class Cmrt(Base):
     objective_without: Mapped[float | None] = mapped_column(Float)
     fell: Mapped[bool] = mapped_column(Boolean)
     fell_without: Mapped[bool | None] = mapped_column(Boolean)
+    #: "search" (the best candidate CMA-ES found) or "flat" (the flat spline was better).
+    winner: Mapped[str] = mapped_column(String(16), server_default="search")
     job_id: Mapped[str | None] = mapped_column(
         String(36), ForeignKey("jobs.id", ondelete="SET NULL"), index=True
     )

@@ -7,7 +7,7 @@ treat them as read-only.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from datetime import datetime
 from typing import Any
 
@@ -130,21 +130,6 @@ class GenerationCounts:
 
 
 @dataclass(frozen=True)
-class EvaluationOutcome:
-    """What `record_evaluation` did.
-
-    `changed` is True only for the one write that moved the evaluation out of `pending`
-    (a repeated write for the same key returns False and the stored record). `counts` are the
-    generation's counts right after this write, taken under the same lock, so exactly one
-    `changed` write observes `counts.resolved == population` for a generation.
-    """
-
-    record: EvaluationRecord
-    changed: bool
-    counts: GenerationCounts
-
-
-@dataclass(frozen=True)
 class EvaluationClaim:
     """What `claim_evaluation` found: what a worker needs to run one candidate (or skip it).
 
@@ -166,9 +151,17 @@ class EvaluationClaim:
         return self.job_status in TERMINAL_STATUSES
 
 
-@dataclass(frozen=True)
-class CmrtRecord:
-    id: str
+#: `CmrtEntry.winner`: the best searched candidate, or the flat spline (no anticipation).
+WINNER_SEARCH = "search"
+WINNER_FLAT = "flat"
+WINNERS: tuple[str, ...] = (WINNER_SEARCH, WINNER_FLAT)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CmrtEntry:
+    """A library CMRT as a caller adds it (`add_cmrt`); `CmrtRecord` adds the stored id and
+    time. The one list of a library entry's fields (the `cmrts` table has a column each)."""
+
     family: str
     #: {"model": ..., "height": ..., "mass": ...}
     character: dict[str, Any]
@@ -177,7 +170,7 @@ class CmrtRecord:
     preparation: float
     duration: float
     decay: float
-    #: The optimised parameter vector in [0, 1]^d.
+    #: The parameter vector in [0, 1]^d.
     params: list[float]
     #: Decoded spline knot times (s) and control values (m).
     knots: list[float]
@@ -185,11 +178,20 @@ class CmrtRecord:
     #: Sampled curve, as produced by optim (e.g. {"t": [...], "x": [...]}).
     curve: Any
     objective: float
-    objective_without: float | None
-    fell: bool
-    fell_without: bool | None
-    job_id: str | None
-    spec: dict[str, Any] | None
+    #: Objective of the flat spline (no anticipation) on the same task.
+    objective_without: float | None = None
+    fell: bool = False
+    fell_without: bool | None = None
+    #: Which candidate this entry is: WINNER_SEARCH (the best CMA-ES found) or WINNER_FLAT
+    #: (the flat spline did better, so the entry is the flat spline: never worse than it).
+    winner: str = WINNER_SEARCH
+    job_id: str | None = None
+    spec: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class CmrtRecord(CmrtEntry):
+    id: str
     created_at: datetime
 
 
@@ -207,3 +209,7 @@ class BasisRecord:
     #: Bounds of the reduced coordinates, e.g. {"low": [...], "high": [...]}.
     box: Any
     created_at: datetime
+
+
+#: Field names of a library entry, in order (`CmrtEntry`).
+CMRT_ENTRY_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(CmrtEntry))

@@ -1,5 +1,7 @@
+"""`python -m worker [options]` is `cmrt worker [options]` (an entry point)."""
+
 import sys
 
-from worker.cli import worker_main
+from cli.main import main
 
-sys.exit(worker_main(sys.argv[1:]))
+sys.exit(main(["worker", *sys.argv[1:]]))

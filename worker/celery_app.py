@@ -1,11 +1,12 @@
-"""The Celery application: broker and result backend from settings, task settings per design.md.
+"""The Celery application: broker, result backend and task settings from `cmrt.settings`
+(the delivery guarantees below are described in docs/service.md, "Architecture").
 
 - `task_acks_late` + `task_reject_on_worker_lost`: a message is acknowledged only after its task
   returned; if the pool process dies mid-task the message goes back to the queue.
 - `worker_prefetch_multiplier = 1`: a worker process reserves one evaluation at a time, so a
   slow candidate never holds others hostage and a killed worker loses at most its own.
 - `task_time_limit` (hard) and a soft limit a little earlier, both under Redis'
-  `visibility_timeout` (checked in worker.config), so Redis never re-delivers a message whose
+  `visibility_timeout` (checked in cmrt.settings), so Redis never re-delivers a message whose
   task is still running.
 - Results are tiny dicts that expire after an hour; traces and trajectories go to the database.
 """
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 from celery import Celery
 
-from worker.config import WorkerConfig, get_worker_config
+from cmrt.settings import Settings, get_settings
 
 TASK_EVALUATE = "cmrt.evaluate_candidate"
 
@@ -22,14 +23,14 @@ TASK_EVALUATE = "cmrt.evaluate_candidate"
 def make_celery(
     broker_url: str | None = None,
     result_backend: str | None = None,
-    config: WorkerConfig | None = None,
+    config: Settings | None = None,
 ) -> Celery:
     """A configured Celery app. Without a broker (embedded mode) it is inert ("memory://")."""
-    cfg = config or get_worker_config()
+    cfg = config or get_settings()
     if broker_url is None and result_backend is None:
-        broker_url, result_backend = cfg.broker_url, cfg.result_backend
+        broker_url, result_backend = cfg.broker_url, cfg.celery_result_backend
     app = Celery("cmrt", broker=broker_url or "memory://", backend=result_backend or None)
-    soft = max(1.0, cfg.task_time_limit - min(30.0, 0.1 * cfg.task_time_limit))
+    soft = max(1.0, cfg.eval_time_limit - min(30.0, 0.1 * cfg.eval_time_limit))
     app.conf.update(
         task_default_queue=cfg.queue,
         task_serializer="json",
@@ -39,8 +40,12 @@ def make_celery(
         task_reject_on_worker_lost=True,
         task_acks_on_failure_or_timeout=True,
         worker_prefetch_multiplier=1,
-        task_time_limit=cfg.task_time_limit,
+        task_time_limit=cfg.eval_time_limit,
         task_soft_time_limit=soft,
+        # No redis-py socket_timeout here, on purpose (partition drill, tests/integration): with
+        # one, an ack sent while the link is silently cut fails ("Couldn't ack") and kombu keeps
+        # the message's prefetch slot, so the worker never consumes again; without one, the ack
+        # waits for the link and the worker carries on once it is back.
         broker_transport_options={"visibility_timeout": cfg.visibility_timeout},
         result_backend_transport_options={"visibility_timeout": cfg.visibility_timeout},
         result_expires=3600,

@@ -1,5 +1,7 @@
-"""The job driver: the CMA-ES ask/tell loop of one job, run against the store.
+"""The job driver: the shared CMA-ES loop (`optim.loop`) of one job, run against the store.
 
+`StoreEvaluator` and `StoreRunState` are the loop's evaluator and persistence for the service;
+the loop itself (ask, evaluate, tell, stop rules, the final evaluation) is `optim.loop`'s.
 One driver per job at a time, enforced by a lease in the store (renewed by a heartbeat thread;
 a driver that loses it stops at once). Each generation:
 
@@ -12,7 +14,8 @@ a driver that loses it stops at once). Each generation:
     check cancellation and the stopping rules
 
 At the end the best candidate and the flat spline (the no-CMRT baseline) are evaluated once more
-(generation -1, same executor path), the CMRT goes into the library and the job ends `converged`
+(generation -1, same executor path); the better of the two goes into the library (an entry is
+never worse than no anticipation; its `winner` says which) and the job ends `converged`
 (stopping rule threshold / slow_convergence / CMA-ES' own) or `stopped` (max_evaluations).
 A failed evaluation (attempts exhausted) or a generation where every candidate raised fails the
 job with the reason; a lost database connection only ends the driver (the job is resumed later).
@@ -33,13 +36,23 @@ from typing import Any
 import numpy as np
 from sqlalchemy.exc import SQLAlchemyError
 
-from optim.cmaes import CmaOptimizer, StopRules
+from cmrt.settings import Settings
+from optim.cmaes import CmaOptimizer, GenerationStats
+from optim.errors import EvaluationError
+from optim.loop import (
+    FINAL_GENERATION,
+    FinalEvaluation,
+    SearchSpace,
+    final_evaluation,
+    new_optimizer,
+    run_generations,
+)
+from optim.outcome import EvalOutcome
 from optim.pca import Basis
-from optim.run import initial_point
-from optim.spline import decode, flat_params, sample_curve
+from optim.spline import decode, sample_curve
 from sim.errors import SpecError
 from sim.spec import TaskSpec, parse_spec
-from store import NotFound, Repository, StoreError
+from store import CmrtEntry, NotFound, Repository, StoreError
 from store.records import (
     CANCELLED,
     CONVERGED,
@@ -49,13 +62,10 @@ from store.records import (
     RUNNING,
     STOPPED,
 )
-from worker.config import WorkerConfig
 from worker.executors import DriverInterruptError, GenerationExecutor, JobFailedError
 
 log = logging.getLogger(__name__)
 
-#: Generation number of the final re-evaluation (index 0: flat baseline, 1: best candidate).
-FINAL_GENERATION = -1
 #: Stopping rules that end a job `stopped` rather than `converged`.
 STOPPED_RULES = frozenset({"max_evaluations"})
 
@@ -108,13 +118,81 @@ class _Lease:
             self._t.join(timeout=5)
 
 
+class StoreEvaluator:
+    """`optim.loop.CandidateEvaluator` of a job: the candidates become pending evaluations in
+    the store (idempotent), the generation executor resolves them, and the stored rows become
+    outcomes. A failed row (attempts exhausted) or a stored candidate that differs from the one
+    asked again after a restart fails the job (JobFailedError)."""
+
+    def __init__(self, driver: JobDriver, spec: TaskSpec) -> None:
+        self.driver, self.spec = driver, spec
+
+    def evaluate(self, generation: int, candidates: Any) -> list[EvalOutcome]:
+        d = self.driver
+        d.check(force=True)
+        full = [list(map(float, p)) for p in candidates]
+        d.repo.put_pending_evaluations(d.job_id, generation, full)
+        rows = d.executor.evaluate(d.repo, d.job_id, self.spec, generation, len(full), d.check)
+        if len(rows) != len(full):
+            raise JobFailedError(f"generation {generation}: {len(rows)} evaluations stored for "
+                                 f"{len(full)} candidates")
+        for r, p in zip(rows, full, strict=True):
+            if r.status == EVAL_FAILED:
+                raise JobFailedError(
+                    r.error or f"candidate {r.index} of generation {generation} failed")
+            if r.params is not None and not np.allclose(r.params, p, rtol=0, atol=1e-12):
+                raise JobFailedError(
+                    f"generation {generation}: stored candidate {r.index} differs from the one "
+                    "asked again after a restart (optimizer state not reproducible)")
+        return [EvalOutcome(objective=float(r.objective), fell=bool(r.fell),
+                            cpu_seconds=float(r.cpu_seconds or 0.0),
+                            error=(r.details or {}).get("error")) for r in rows]
+
+
+class StoreRunState:
+    """`optim.loop.RunState` of a job: the optimizer pickled in each generation record."""
+
+    def __init__(self, driver: JobDriver) -> None:
+        self.driver = driver
+
+    def restore(self) -> CmaOptimizer | None:
+        d = self.driver
+        latest = d.repo.latest_generation(d.job_id)
+        if latest is None or latest.optimizer_state is None:
+            return None
+        log.info("job %s: resuming after generation %d", d.job_id, latest.iteration)
+        return CmaOptimizer.loads(latest.optimizer_state)
+
+    def save(self, opt: CmaOptimizer, generation: int, stats: GenerationStats,
+             candidates: Any, wall_seconds: float) -> None:
+        d = self.driver
+        best_x = opt.best_x
+        best_full = None if best_x is None else d.space.to_full(best_x)
+        d.repo.record_generation(
+            d.job_id,
+            generation,
+            best=stats.best,
+            median=stats.median,
+            worst=stats.worst,
+            sigma=stats.sigma,
+            best_so_far=stats.best_so_far,
+            evaluations=stats.evaluations,
+            wall_time=wall_seconds,
+            candidates=[list(map(float, p)) for p in candidates],
+            optimizer_state=opt.dumps(),
+            best_params=None if best_full is None else list(map(float, best_full)),
+        )
+        if d.on_generation is not None:
+            d.on_generation(generation)
+
+
 class JobDriver:
     def __init__(
         self,
         repo: Repository,
         job_id: str,
         executor: GenerationExecutor,
-        config: WorkerConfig,
+        config: Settings,
         *,
         owner: str | None = None,
         shutdown: threading.Event | None = None,
@@ -127,6 +205,7 @@ class JobDriver:
         self.owner = owner or make_owner()
         self.shutdown = shutdown or threading.Event()
         self.on_generation = on_generation
+        self.space: SearchSpace
         self._lease: _Lease | None = None
         self._last_cancel_check = 0.0
 
@@ -148,12 +227,13 @@ class JobDriver:
     def run(self) -> str | None:
         """Drive the job to its end; returns its final status, or None if this driver did not
         (could not) finish it (lease held elsewhere, shutdown, database unavailable)."""
+        ttl = self.config.lease_seconds
         try:
-            if not self.repo.acquire_driver_lease(self.job_id, self.owner, self.config.lease_ttl):
+            if not self.repo.acquire_driver_lease(self.job_id, self.owner, ttl):
                 return None
         except NotFound:
             return None
-        self._lease = _Lease(self.repo, self.job_id, self.owner, self.config.lease_ttl)
+        self._lease = _Lease(self.repo, self.job_id, self.owner, ttl)
         self._lease.start()
         try:
             return self._run()
@@ -162,7 +242,7 @@ class JobDriver:
                 return self._finish_status(CANCELLED)
             log.info("job %s: driver stops (%s)", self.job_id, why)
             return None
-        except JobFailedError as err:
+        except (JobFailedError, EvaluationError) as err:
             log.error("job %s failed: %s", self.job_id, err)
             return self._finish_status(FAILED, error=str(err))
         except (SQLAlchemyError, StoreError) as err:
@@ -187,26 +267,21 @@ class JobDriver:
         self.repo.set_job_status(self.job_id, status, stop_rule=stop_rule, error=error)
         return status
 
-    def _problem(
-        self, job: Any, spec: TaskSpec
-    ) -> tuple[int, Callable[[np.ndarray], np.ndarray], Basis | None]:
+    def _space(self, job: Any, spec: TaskSpec) -> SearchSpace:
         if job.basis_id is None:
-            return spec.cmrt_dimension, lambda x: np.clip(np.asarray(x, float), 0.0, 1.0), None
+            return SearchSpace.of(spec)
         try:
-            basis = basis_from_record(self.repo.get_basis(job.basis_id))
-            basis.check_spec(spec)
+            return SearchSpace.of(spec, basis_from_record(self.repo.get_basis(job.basis_id)))
         except NotFound:
             raise JobFailedError(f"basis {job.basis_id!r} does not exist") from None
         except Exception as err:  # noqa: BLE001 - BasisError, bad stored box
             raise JobFailedError(f"basis {job.basis_id!r} cannot be used: {err}") from None
-        duration = spec.clip.duration
-        return basis.k, lambda x: basis.decode(x, duration), basis
 
     def _run(self) -> str | None:
         job = self.repo.get_job(self.job_id)
         if job.terminal:
             return job.status
-        try:
+        try:  # the store is a process boundary: the one parse of the spec in this process
             spec = parse_spec(job.spec, f"job {self.job_id} spec")
         except SpecError as err:
             raise JobFailedError(str(err)) from None
@@ -214,132 +289,57 @@ class JobDriver:
             raise DriverInterruptError("cancel")
         if job.status == QUEUED:
             self.repo.set_job_status(self.job_id, RUNNING)
-        dim, to_full, basis = self._problem(job, spec)
-
-        latest = self.repo.latest_generation(self.job_id)
-        if latest is not None and latest.optimizer_state is not None:
-            opt = CmaOptimizer.loads(latest.optimizer_state)
-            generation = latest.iteration + 1
-            log.info("job %s: resuming after generation %d", self.job_id, latest.iteration)
-        else:
-            x0 = initial_point(spec, basis=basis)  # the same start rule as `cmrt optimize`
-            opt = CmaOptimizer(
-                dim,
-                seed=int(job.seed if job.seed is not None else 0),
-                x0=x0,
-                sigma0=spec.optimize.sigma0,
-                popsize=spec.optimize.popsize,
-                rules=StopRules.from_config(spec.optimize),
-            )
-            generation = 0
+        self.space = self._space(job, spec)
+        state = StoreRunState(self)
+        opt = state.restore() or new_optimizer(
+            spec, self.space, int(job.seed if job.seed is not None else 0))
         t_job = time.monotonic()
-
-        stop_rule = opt.stop()
-        while stop_rule is None:
-            self.check(force=True)
-            t0 = time.monotonic()
-            xs = opt.ask()
-            full = [to_full(x) for x in xs]
-            self.repo.put_pending_evaluations(
-                self.job_id, generation, [list(map(float, p)) for p in full])
-            rows = self.executor.evaluate(
-                self.repo, self.job_id, job.spec, generation, len(xs), self.check)
-            self._check_rows(rows, generation, full)
-            objectives = [r.objective for r in rows]
-            if all((r.details or {}).get("error") for r in rows):
-                raise JobFailedError(
-                    f"every candidate of generation {generation} failed to evaluate; first error: "
-                    f"{rows[0].details['error']}"
-                )
-            stats = opt.tell(xs, objectives)
-            best_full = to_full(opt.best_x) if opt.best_x is not None else None
-            self.repo.record_generation(
-                self.job_id,
-                generation,
-                best=stats.best,
-                median=stats.median,
-                worst=stats.worst,
-                sigma=stats.sigma,
-                best_so_far=stats.best_so_far,
-                evaluations=stats.evaluations,
-                wall_time=time.monotonic() - t0,
-                candidates=[list(map(float, p)) for p in full],
-                optimizer_state=opt.dumps(),
-                best_params=None if best_full is None else list(map(float, best_full)),
-            )
-            if self.on_generation is not None:
-                self.on_generation(generation)
-            generation += 1
-            stop_rule = opt.stop()
-
-        self.check(force=True)
-        self._add_to_library(job, spec, opt, to_full, basis)
+        evaluator = StoreEvaluator(self, spec)
+        stop_rule = run_generations(opt, self.space, evaluator, state)
+        if self.repo.job_cmrt(self.job_id) is None:  # a driver may have died after adding it
+            final = final_evaluation(opt, self.space, evaluator)
+            self._add_to_library(job, spec, final)
         status = STOPPED if stop_rule in STOPPED_RULES else CONVERGED
         log.info("job %s: %s (%s) after %d generations, %.1f s", self.job_id, status, stop_rule,
-                 generation, time.monotonic() - t_job)
+                 opt.iterations, time.monotonic() - t_job)
         return self._finish_status(status, stop_rule=stop_rule)
 
-    def _check_rows(self, rows: list[Any], generation: int, full: list[np.ndarray]) -> None:
-        if len(rows) != len(full):
-            raise JobFailedError(f"generation {generation}: {len(rows)} evaluations stored for "
-                            f"{len(full)} candidates")
-        for r, p in zip(rows, full, strict=True):
-            if r.status == EVAL_FAILED:
-                raise JobFailedError(
-                    r.error or f"candidate {r.index} of generation {generation} failed")
-            if r.params is not None and not np.allclose(r.params, p, rtol=0, atol=1e-12):
-                raise JobFailedError(
-                    f"generation {generation}: stored candidate {r.index} differs from the one "
-                    "asked again after a restart (optimizer state not reproducible)")
-
-    def _library_entry(self) -> str | None:
-        family = parse_spec(self.repo.get_job(self.job_id).spec).family_name
-        offset = 0
-        while True:
-            items, total = self.repo.list_cmrts(family, limit=500, offset=offset)
-            for c in items:
-                if c.job_id == self.job_id:
-                    return c.id
-            offset += len(items)
-            if not items or offset >= total:
-                return None
-
-    def _add_to_library(self, job: Any, spec: TaskSpec, opt: CmaOptimizer,
-                        to_full: Callable[[np.ndarray], np.ndarray], basis: Basis | None) -> None:
-        assert opt.best_x is not None
-        if self._library_entry() is not None:  # a driver died after adding it: don't add twice
-            return
-        best_full = to_full(opt.best_x)
-        base = flat_params(spec)
-        self.repo.put_pending_evaluations(
-            self.job_id, FINAL_GENERATION, [list(map(float, base)), list(map(float, best_full))])
-        rows = self.executor.evaluate(
-            self.repo, self.job_id, job.spec, FINAL_GENERATION, 2, self.check)
-        for r, label in zip(rows, ("baseline (flat spline)", "best CMRT"), strict=True):
-            if r.status == EVAL_FAILED or (r.details or {}).get("error"):
-                raise JobFailedError(f"final evaluation of the {label} failed: "
-                                f"{r.error or r.details.get('error')}")
-        base_row, best_row = rows
-        spline = decode(spec, best_full)
+    def _add_to_library(self, job: Any, spec: TaskSpec, final: FinalEvaluation) -> None:
+        """The library entry: the better of the best candidate and the flat spline (never
+        worse than no anticipation); `winner` records which one it is."""
+        params, out = final.chosen
+        spline = decode(spec, params)
         values: list[Any] = [float(v) for v in spline.values]
         if spline.vertical_values is not None:
             values = [[float(a), float(b)]
                       for a, b in zip(spline.values, spline.vertical_values, strict=True)]
-        self.repo.add_cmrt(
+        self.repo.add_cmrt(CmrtEntry(
             family=spec.family_name,
             character=spec.character.model_dump(mode="json"),
             task_parameters=spec.task_parameters(),
             preparation=spec.clip.preparation,
             duration=spec.clip.duration,
             decay=spec.clip.decay,
-            params=[float(v) for v in best_full],
+            params=[float(v) for v in params],
             knots=[float(v) for v in spline.knot_times],
             values=values,
             curve=sample_curve(spline),
-            objective=float(best_row.objective),
-            objective_without=float(base_row.objective),
-            fell=bool(best_row.fell),
-            fell_without=bool(base_row.fell),
+            objective=float(out.objective),
+            objective_without=float(final.flat.objective),
+            fell=bool(out.fell),
+            fell_without=bool(final.flat.fell),
+            winner=final.winner,
             job_id=self.job_id,
             spec=job.spec,
-        )
+        ))
+
+
+__all__ = [
+    "FINAL_GENERATION",
+    "STOPPED_RULES",
+    "JobDriver",
+    "StoreEvaluator",
+    "StoreRunState",
+    "basis_from_record",
+    "make_owner",
+]

@@ -70,15 +70,16 @@ class SpecCache:
         self._d: OrderedDict[str, tuple[TaskSpec, Any]] = OrderedDict()
 
     def get(
-        self, repo: Repository, job_id: str, spec_data: dict | None = None
+        self, repo: Repository, job_id: str, spec: TaskSpec | None = None
     ) -> tuple[TaskSpec, Any]:
+        """The job's (spec, objective): `spec` when the caller has parsed it already, else
+        read from the store and parsed (once per process and job)."""
         hit = self._d.get(job_id)
         if hit is not None:
             self._d.move_to_end(job_id)
             return hit
-        if spec_data is None:
-            spec_data = repo.get_job(job_id).spec
-        spec = parse_spec(spec_data, f"job {job_id} spec")
+        if spec is None:
+            spec = parse_spec(repo.get_job(job_id).spec, f"job {job_id} spec")
         entry = (spec, self.factory(spec))
         self._d[job_id] = entry
         while len(self._d) > self.size:

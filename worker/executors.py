@@ -2,9 +2,11 @@
 candidates are already stored as pending evaluations (keyed by job, generation, index) and the
 executor returns once every one of them is resolved (done or failed).
 
-- `LocalPoolExecutor` (embedded default, no broker): evaluates in a local process pool
-  (`optim.executors.PoolExecutor`) and upserts the results itself; attempts are counted the same
-  way, so a candidate that kills its pool process fails its job after `max_attempts`.
+- `LocalPoolExecutor` (embedded default, no broker): evaluates in this process' `FairPool`
+  (worker.fairpool: round robin between jobs, a stopped job's running candidates dropped) and
+  upserts the results itself; attempts are counted the same way, so a candidate that kills its
+  pool process fails its job after `max_attempts`; attempts cut short by a graceful stop
+  (shutdown) are given back (`release_attempt`).
 - `CeleryExecutor`: sends one `evaluate_candidate(job_id, generation, index)` task per pending
   candidate and waits by polling the store's counts (never `.get()`); lost messages are sent
   again (idempotent, see `CeleryExecutor.evaluate`), so a message lost with a broker restart or
@@ -19,17 +21,18 @@ import socket
 import threading
 import time
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
+from cmrt.settings import Settings
 from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
-from optim.executors import PoolExecutor
+from sim.spec import TaskSpec
 from store import EvaluationClaim, EvaluationRecord, Repository
 from store.records import PENDING
-from worker.config import WorkerConfig
 from worker.evaluation import (
     ObjectiveFactory,
     SpecCache,
@@ -37,6 +40,7 @@ from worker.evaluation import (
     default_objective_factory,
     outcome_fields,
 )
+from worker.fairpool import FairPool
 
 log = logging.getLogger(__name__)
 
@@ -62,12 +66,13 @@ class GenerationExecutor(ABC):
         self,
         repo: Repository,
         job_id: str,
-        spec_data: dict[str, Any],
+        spec: TaskSpec,
         generation: int,
         population: int,
         check: Checkpoint,
     ) -> list[EvaluationRecord]:
-        """Resolve every pending evaluation of (job, generation); return them in index order."""
+        """Resolve every pending evaluation of (job, generation); return them in index order.
+        `spec` is the job's parsed spec (the driver parses it once)."""
 
     def stats(self) -> dict[str, Any]:
         return {}
@@ -76,28 +81,56 @@ class GenerationExecutor(ABC):
         pass
 
 
+class _BatchPool:
+    """A `FairPool` stand-in over an optim `Executor` (tests: a serial executor, one batch per
+    call; a failed batch counts as every candidate's process dying)."""
+
+    def __init__(self, executor: BatchExecutor) -> None:
+        self.executor = executor
+
+    @property
+    def workers(self) -> int:
+        return self.executor.workers
+
+    def run(self, job, fn, batch, check, on_result) -> None:
+        check()
+        try:
+            outs: list[Any] = self.executor.map(fn, list(batch))
+        except EvaluationError as err:
+            outs = [err] * len(batch)
+        for i, out in enumerate(outs):
+            on_result(i, out)
+
+    def close(self) -> None:
+        self.executor.close()
+
+
 class LocalPoolExecutor(GenerationExecutor):
+    """Evaluates in this process' `FairPool` (fair share between jobs; a cancelled or stopped
+    job's running candidates are dropped within `fairpool.POLL_S`)."""
+
     kind = "local-pool"
 
     def __init__(
         self,
-        config: WorkerConfig,
+        config: Settings,
         *,
-        pool: BatchExecutor | None = None,
+        pool: BatchExecutor | FairPool | None = None,
         objective_factory: ObjectiveFactory | None = None,
     ) -> None:
         self.config = config
-        self.pool = pool if pool is not None else PoolExecutor(config.local_workers)
+        if pool is None:
+            pool = FairPool(config.workers, time_limit=config.eval_time_limit)
+        self.pool: Any = pool if isinstance(pool, FairPool) else _BatchPool(pool)
         self.cache = SpecCache(objective_factory or default_objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
-    def evaluate(self, repo, job_id, spec_data, generation, population, check):
-        _, objective = self.cache.get(repo, job_id, spec_data)
+    def evaluate(self, repo, job_id, spec, generation, population, check):
+        _, objective = self.cache.get(repo, job_id, spec)
         while True:
             check()
-            rows = repo.evaluations(job_id, generation)
             todo: list[EvaluationClaim] = []
-            for r in rows:
+            for r in repo.evaluations(job_id, generation):
                 if r.status != PENDING:
                     continue
                 claim = repo.claim_evaluation(job_id, generation, r.index)
@@ -111,13 +144,27 @@ class LocalPoolExecutor(GenerationExecutor):
                 todo.append(claim)
             if not todo:
                 return repo.evaluations(job_id, generation)
-            try:
-                outs = self.pool.map(objective, [np.asarray(r.params, dtype=float) for r in todo])
-            except EvaluationError as err:  # a pool process died: count it, try the rest again
-                log.warning("job %s generation %d: %s", job_id, generation, err)
-                continue
-            for c, out in zip(todo, outs, strict=True):
+            settled: set[int] = set()  # stored, or its process died (the attempt counts)
+
+            def on_result(i: int, out: Any, todo=todo, settled=settled) -> None:
+                c = todo[i]
+                if isinstance(out, EvaluationError):  # its process died: the attempt counts
+                    log.warning("job %s generation %d candidate %d: %s", job_id, generation,
+                                c.index, out)
+                    settled.add(i)
+                    return
                 repo.store_result(job_id, generation, c.index, **outcome_fields(out, self.node))
+                settled.add(i)
+
+            try:
+                self.pool.run(job_id, objective, [np.asarray(c.params, dtype=float)
+                                                  for c in todo], check, on_result)
+            except DriverInterruptError as why:
+                if str(why) == "shutdown":  # a graceful stop is not a crash: un-count them
+                    for i, c in enumerate(todo):
+                        if i not in settled:
+                            repo.release_attempt(job_id, generation, c.index)
+                raise
 
     def stats(self):
         return {"workers": self.pool.workers}
@@ -175,7 +222,7 @@ def _broker_errors() -> tuple[type[BaseException], ...]:
 class CeleryExecutor(GenerationExecutor):
     kind = "celery"
 
-    def __init__(self, config: WorkerConfig, app: Any | None = None) -> None:
+    def __init__(self, config: Settings, app: Any | None = None) -> None:
         if app is None:
             from worker.celery_app import app as default_app
 
@@ -187,6 +234,9 @@ class CeleryExecutor(GenerationExecutor):
         self._errors = _broker_errors()
         self._lock = threading.Lock()
         self._last_progress = time.monotonic()
+        #: Celery task ids of the messages sent, per (job, generation): what a cancel revokes.
+        self._task_ids: dict[tuple[str, int], dict[int, str]] = {}
+        self.revoked = 0
 
     # -- broker ------------------------------------------------------------------------------
     def _send(
@@ -200,7 +250,7 @@ class CeleryExecutor(GenerationExecutor):
         while pending:
             i = pending[0]
             try:
-                self.app.send_task(
+                res = self.app.send_task(
                     TASK_EVALUATE,
                     args=[job_id, generation, i],
                     queue=self.config.queue,
@@ -211,6 +261,9 @@ class CeleryExecutor(GenerationExecutor):
                 )
                 pending.pop(0)
                 self.sent += 1
+                if res is not None and getattr(res, "id", None):
+                    with self._lock:
+                        self._task_ids.setdefault((job_id, generation), {})[i] = res.id
                 down_since, delay = None, 0.2
             except self._errors as err:
                 now = time.monotonic()
@@ -236,58 +289,112 @@ class CeleryExecutor(GenerationExecutor):
         with self._lock:
             self._last_progress = time.monotonic()
 
-    def evaluate(self, repo, job_id, spec_data, generation, population, check):
-        """Send the unresolved candidates and wait for the store to hold all their results.
+    def _revoke(self, job_id: str, generation: int, indices: Sequence[int]) -> None:
+        """Drop a cancelled job's sent evaluations: revoke their messages (a worker discards
+        them unstarted) and kill the worker processes running them (`terminate`, SIGKILL)."""
+        with self._lock:
+            ids = self._task_ids.get((job_id, generation), {})
+            task_ids = [ids[i] for i in indices if i in ids]
+        if not task_ids:
+            return
+        try:
+            self.app.control.revoke(task_ids, terminate=True, signal="SIGKILL")
+            self.revoked += len(task_ids)
+            log.info("job %s: revoked %d evaluations of generation %d", job_id, len(task_ids),
+                     generation)
+        except self._errors as err:  # the claims skip them anyway (the job is terminal)
+            log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
+
+    def evaluate(self, repo, job_id, spec, generation, population, check):
+        """Send the unresolved candidates, at most `dispatch_window` unresolved at a time (so
+        jobs share the queue fairly), and wait for the store to hold all their results.
 
         Lost messages are sent again (idempotent tasks) in two cases: (1) stall: no evaluation
         of any job driven here finished for `stall_timeout` s (so workers are idle or gone while
         this generation is unresolved: the queue lost its messages, e.g. a broker restart
         without persistence, or a worker died with them); (2) overdue: a candidate is unresolved
-        `visibility_timeout + task_time_limit` s after it was sent, by which time Redis would
-        have re-delivered an unacknowledged message anyway.
+        `visibility_timeout + eval_time_limit` s after it was sent, by which time Redis would
+        have re-delivered an unacknowledged message anyway. On cancel the sent evaluations are
+        revoked (`_revoke`) before the interrupt propagates.
         """
         rows = repo.evaluations(job_id, generation)
-        unresolved = [r.index for r in rows if r.status == PENDING]
+        unsent = deque(r.index for r in rows if r.status == PENDING)
         schedule = PollSchedule(time.monotonic(), self.config.poll_interval)
-        self._send(job_id, generation, unresolved, check)
-        sent_at = dict.fromkeys(unresolved, time.monotonic())
-        last_send = time.monotonic()
-        resolved = initially = population - len(unresolved)
-        overdue_after = self.config.visibility_timeout + self.config.task_time_limit
-        while True:
-            counts = repo.evaluation_counts(job_id, generation)
-            if counts.resolved >= population:
+        window = self.config.dispatch_window
+        sent_at: dict[int, float] = {}  # sent, not seen resolved yet
+
+        def top_up() -> None:
+            batch = []
+            while unsent and len(sent_at) + len(batch) < window:
+                batch.append(unsent.popleft())
+            if batch:
+                self._send(job_id, generation, batch, check)
+                sent_at.update(dict.fromkeys(batch, time.monotonic()))
+
+        try:
+            top_up()
+            last_send = time.monotonic()
+            resolved = initially = population - len(unsent) - len(sent_at)
+            overdue_after = self.config.visibility_timeout + self.config.eval_time_limit
+            while True:
+                counts = repo.evaluation_counts(job_id, generation)
+                if counts.resolved >= population:
+                    if counts.resolved > resolved:
+                        self._progress()
+                    return repo.evaluations(job_id, generation)
+                now = time.monotonic()
+                pending: set[int] | None = None
                 if counts.resolved > resolved:
+                    resolved = counts.resolved
                     self._progress()
-                return repo.evaluations(job_id, generation)
-            now = time.monotonic()
-            if counts.resolved > resolved:
-                resolved = counts.resolved
-                self._progress()
-            with self._lock:
-                quiet = now - max(self._last_progress, last_send)
-            overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
-            if quiet > self.config.stall_timeout or overdue:
-                rows = repo.evaluations(job_id, generation)
-                pending = {r.index for r in rows if r.status == PENDING}
-                again = sorted(pending if quiet > self.config.stall_timeout
-                               else pending.intersection(overdue))
-                if again:
-                    log.warning(
-                        "job %s generation %d: %s; sending %d unresolved evaluations again",
-                        job_id, generation,
-                        f"no evaluation finished for {quiet:.0f} s" if not overdue
-                        else f"{len(overdue)} overdue", len(again))
-                    self._send(job_id, generation, again, check)
-                    self.resent += len(again)
-                last_send = time.monotonic()
-                sent_at.update(dict.fromkeys(again, last_send))
-                for i in list(sent_at):
-                    if i not in pending:
+                    pending = {r.index for r in repo.evaluations(job_id, generation)
+                               if r.status == PENDING}
+                    for i in [i for i in sent_at if i not in pending]:
                         del sent_at[i]
-            check()
-            time.sleep(schedule.delay(time.monotonic(), counts.resolved - initially,
-                                      population - counts.resolved))
+                    unsent = deque(i for i in unsent if i in pending)
+                    top_up()
+                with self._lock:
+                    quiet = now - max(self._last_progress, last_send)
+                overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
+                if quiet > self.config.stall_timeout or overdue:
+                    if pending is None:
+                        pending = {r.index for r in repo.evaluations(job_id, generation)
+                                   if r.status == PENDING}
+                    again = sorted(set(sent_at).intersection(pending) if not overdue
+                                   else pending.intersection(overdue))
+                    if again:
+                        log.warning(
+                            "job %s generation %d: %s; sending %d unresolved evaluations again",
+                            job_id, generation,
+                            f"no evaluation finished for {quiet:.0f} s" if not overdue
+                            else f"{len(overdue)} overdue", len(again))
+                        self._send(job_id, generation, again, check)
+                        self.resent += len(again)
+                    last_send = time.monotonic()
+                    sent_at.update(dict.fromkeys(again, last_send))
+                    for i in [i for i in sent_at if i not in pending]:
+                        del sent_at[i]
+                check()
+                time.sleep(schedule.delay(time.monotonic(), counts.resolved - initially,
+                                          population - counts.resolved))
+        except DriverInterruptError as why:
+            if str(why) == "cancel":
+                self._revoke(job_id, generation, list(sent_at))
+            raise
+        finally:
+            with self._lock:
+                self._task_ids.pop((job_id, generation), None)
 
     def stats(self):
-        return {"sent": self.sent, "resent": self.resent}
+        return {"sent": self.sent, "resent": self.resent, "revoked": self.revoked}
+
+
+def make_generation_executor(settings: Settings) -> GenerationExecutor:
+    """The executor the settings select: Celery when a broker is configured, else the local
+    process pool (embedded default)."""
+    if settings.distributed:
+        from worker.celery_app import make_celery
+
+        app = make_celery(settings.broker_url, settings.celery_result_backend, settings)
+        return CeleryExecutor(settings, app)
+    return LocalPoolExecutor(settings)

@@ -13,8 +13,8 @@ import logging
 import threading
 from typing import Any
 
+from cmrt.settings import Settings
 from store import Repository
-from worker.config import WorkerConfig
 from worker.driver import JobDriver, make_owner
 from worker.executors import GenerationExecutor
 
@@ -26,7 +26,7 @@ class JobRunner:
         self,
         repo: Repository,
         executor: GenerationExecutor,
-        config: WorkerConfig,
+        config: Settings,
         *,
         max_drivers: int = 32,
     ) -> None:

@@ -18,8 +18,8 @@ from typing import Any
 
 from celery.signals import worker_process_init
 
+from cmrt.settings import get_settings
 from worker.celery_app import TASK_EVALUATE, app
-from worker.config import get_worker_config
 from worker.evaluation import SpecCache, open_worker_repository, run_candidate
 
 _lock = threading.Lock()
@@ -31,7 +31,7 @@ def _repository():
     global _repo
     with _lock:
         if _repo is None:
-            _repo = open_worker_repository(get_worker_config().database_url)
+            _repo = open_worker_repository(get_settings().database_url)
         return _repo
 
 
@@ -50,7 +50,7 @@ def evaluate_candidate(self, job_id: str, generation: int, index: int) -> dict[s
         job_id,
         int(generation),
         int(index),
-        max_attempts=get_worker_config().max_attempts,
+        max_attempts=get_settings().max_attempts,
         cache=_cache,
         worker_name=f"{node}/{os.getpid()}",
     )

@@ -18,6 +18,7 @@ from sim.errors import SpecError
 from sim.spec import parse_spec
 from store import NotFound
 from store.records import JOB_STATUSES
+from worker import admission
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -44,7 +45,8 @@ def _envelope(data: Any, seed: int | None, basis: str | None) -> tuple[Any, int 
             env_basis if env_basis is not None else basis)
 
 
-def _check_basis(repo: Any, basis: str, spec: Any) -> None:
+def _check_basis(repo: Any, basis: str, spec: Any) -> int:
+    """The basis' dimension k, once it is known to fit the spec (422 otherwise)."""
     from worker.driver import basis_from_record
 
     try:
@@ -55,6 +57,7 @@ def _check_basis(repo: Any, basis: str, spec: Any) -> None:
         b.check_spec(spec)
     except BasisError as err:
         raise ApiError(422, f"basis: {err}") from None
+    return b.k
 
 
 @router.post("", status_code=202, response_model=schemas.JobAccepted,
@@ -77,15 +80,19 @@ async def submit_job(
         spec = parse_spec(data, "spec")
     except SpecError as err:
         raise ApiError(422, str(err)) from None
-    if basis is not None:
-        _check_basis(svc.repo, basis, spec)
+    k = None if basis is None else _check_basis(svc.repo, basis, spec)
+    try:  # the job's budget against the server's ceiling (worker.admission)
+        budget = admission.check(spec, svc.settings, dimension=k)
+    except admission.BudgetExceeded as err:
+        raise ApiError(422, str(err)) from None
     job = svc.repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task_type,
                               seed=0 if seed is None else seed, basis_id=basis)
     if svc.run_drivers:
         svc.runner.submit(job.id)
     url = url_for(request, "get_job", job_id=job.id)
-    return JSONResponse({"id": job.id, "url": url, "status": job.status},
+    return JSONResponse({"id": job.id, "url": url, "status": job.status,
+                         "budget": budget.to_dict()},
                         status_code=202, headers={"Location": url})
 
 

@@ -36,8 +36,9 @@ WORKER_FAULTS = {"CMRT_FAULT_CRASH_ON": "poison:0:1",
 @pytest.fixture(scope="session")
 def topology():
     work = Path(tempfile.mkdtemp(prefix="cmrt-it-"))
-    topo = make_topology(work, dict(OVERRIDES))
+    topo = None
     try:
+        topo = make_topology(work, dict(OVERRIDES))
         topo.start_redis()
         topo.create_database()
         topo.warm_up()
@@ -47,11 +48,13 @@ def topology():
         topo.wait_workers_ready(2)
         yield topo
     except BaseException:
-        print(topo.logs())
+        if topo is not None:
+            print(topo.logs())
         raise
     finally:
-        topo.stop_all()
-        topo.drop_database()
+        if topo is not None:
+            topo.stop_all()
+            topo.drop_database()
         if os.environ.get("CMRT_IT_KEEP_LOGS") is None:
             import shutil
 

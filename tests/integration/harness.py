@@ -21,6 +21,10 @@ local (`LocalTopology`): each application service's own `command` and `environme
               postgresql+psycopg://postgres@127.0.0.1:5432/test) with a fresh database per run.
   Host names in the compose URLs (redis, postgres) are rewritten to these local addresses; the
   `python` of the commands is this interpreter. Logs go to the run's temporary folder.
+  Where network namespaces can be made (`netns_unavailable()` says why not), the workers run
+  on a host of their own (`NetnsHost`: a namespace and a veth link) and reach Redis (also bound
+  to the link's root side) and PostgreSQL (through tcp_forward.py on the link's root side) only
+  across that link, which `cut_worker_link()` / `restore_worker_link()` cut and restore.
 """
 
 from __future__ import annotations
@@ -48,10 +52,17 @@ COMPOSE = ROOT / "docker-compose.yml"
 PG_ADMIN_URL = os.environ.get("CMRT_IT_PG", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 
 
-def free_port() -> int:
+def free_port(host: str = "127.0.0.1") -> int:
     with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
+        s.bind((host, 0))
         return s.getsockname()[1]
+
+
+def sa_url(url: str):
+    """`url` parsed by SQLAlchemy (host, port, database, `set(...)`)."""
+    import sqlalchemy as sa
+
+    return sa.engine.make_url(url)
 
 
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::?-([^}]*))?\}")
@@ -69,6 +80,141 @@ def docker_available() -> bool:
         return subprocess.run(["docker", "info"], capture_output=True, timeout=10).returncode == 0
     except (OSError, subprocess.TimeoutExpired):
         return False
+
+
+#: Where the worker hosts' links are numbered: one /30 per link (host side .1, worker side .2),
+#: a random one per run among those no interface of the machine uses.
+NETNS_NET = "10.231"
+#: Network namespaces of this harness are named `cmrt-it-<pid of the test process>-<random>`;
+#: one whose process is gone is a leftover of a killed run, removed by the next run.
+NETNS_PREFIX = "cmrt-it-"
+
+
+def netns_unavailable() -> str | None:
+    """Why worker hosts (network namespaces) cannot be made here, or None if they can."""
+    if os.environ.get("CMRT_IT_NETNS", "1") in ("0", "off", "no"):
+        return "CMRT_IT_NETNS=0: workers run in the root network namespace"
+    if sys.platform != "linux":
+        return f"network namespaces are a Linux feature (platform {sys.platform})"
+    if shutil.which("ip") is None:
+        return "`ip` (iproute2) not found: cannot make a network namespace for the worker host"
+    if os.geteuid() != 0:
+        return "not root: `ip netns add` and veth links need CAP_NET_ADMIN"
+    probe = f"{NETNS_PREFIX}probe-{os.getpid()}"
+    r = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
+    if r.returncode != 0:
+        return f"`ip netns add` failed: {r.stderr.strip()}"
+    subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+    return None
+
+
+def _ip(*args: str, netns: str | None = None, check: bool = True) -> str:
+    argv = ["ip", "netns", "exec", netns, "ip", *args] if netns else ["ip", *args]
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
+    if check and r.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv)} failed ({r.returncode}): {r.stderr.strip()}")
+    return r.stdout
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def sweep_stale_netns() -> list[str]:
+    """Remove the worker hosts left by runs whose test process is gone (killed before its
+    finalizers ran): their processes are killed, the namespace deleted (which deletes its veth
+    pair). Returns the names removed."""
+    removed = []
+    for line in _ip("netns", "list", check=False).splitlines():
+        name = line.split()[0] if line.split() else ""
+        m = re.fullmatch(re.escape(NETNS_PREFIX) + r"(?:probe-)?(\d+)(?:-[0-9a-f]+)?", name)
+        if m is None or _pid_alive(int(m.group(1))):
+            continue
+        NetnsHost(name, "", "", "", "").destroy()
+        removed.append(name)
+    return removed
+
+
+@dataclass
+class NetnsHost:
+    """A separate "host" for services: a network namespace joined to the root namespace by a
+    veth pair, `host_addr` (root side) <-> `addr` (namespace side), one /30 of NETNS_NET.
+
+    What runs inside (`wrap(argv)`: `ip netns exec NAME argv`, the same process, so its pid and
+    process group are the service's own) reaches the root namespace only at `host_addr`, where
+    the harness exposes Redis and PostgreSQL. `cut()` sets the root side of the link down: the
+    namespace's packets are dropped without an answer (its link has no carrier), and the root
+    side's replies have no route, so to the worker the servers fall silent without a reset or
+    a FIN, like a dead switch port or a partition; `restore()` brings it back (same addresses,
+    so established TCP connections may survive a short cut). `destroy()` kills whatever still
+    runs inside and deletes the namespace and the link.
+    """
+
+    name: str
+    host_if: str
+    ns_if: str
+    host_addr: str
+    addr: str
+
+    @classmethod
+    def create(cls) -> NetnsHost:
+        sweep_stale_netns()
+        tag = uuid.uuid4().hex[:6]
+        used = _ip("-4", "-o", "addr", check=False)
+        for _ in range(100):
+            a, b = uuid.uuid4().bytes[:2]
+            net = f"{NETNS_NET}.{a}"
+            first = b & 0xFC  # the /30's network address
+            if not any(f" {net}.{first + k}/" in used for k in range(4)):
+                break
+        else:  # pragma: no cover
+            raise RuntimeError(f"no free /30 in {NETNS_NET}.0.0/16")
+        host = cls(f"{NETNS_PREFIX}{os.getpid()}-{tag}", f"ci{tag}h", f"ci{tag}n",
+                   f"{net}.{first + 1}", f"{net}.{first + 2}")
+        try:
+            _ip("netns", "add", host.name)
+            _ip("link", "add", host.host_if, "type", "veth", "peer", "name", host.ns_if)
+            _ip("link", "set", host.ns_if, "netns", host.name)
+            _ip("addr", "add", f"{host.host_addr}/30", "dev", host.host_if)
+            _ip("link", "set", host.host_if, "up")
+            _ip("addr", "add", f"{host.addr}/30", "dev", host.ns_if, netns=host.name)
+            _ip("link", "set", host.ns_if, "up", netns=host.name)
+            _ip("link", "set", "lo", "up", netns=host.name)
+        except BaseException:
+            host.destroy()
+            raise
+        return host
+
+    def wrap(self, argv: list[str]) -> list[str]:
+        return ["ip", "netns", "exec", self.name, *argv]
+
+    def cut(self) -> None:
+        _ip("link", "set", self.host_if, "down")
+
+    def restore(self) -> None:
+        _ip("link", "set", self.host_if, "up")
+
+    @property
+    def link_up(self) -> bool:
+        return "UP" in _ip("-br", "link", "show", self.host_if, check=False).split()[1:2]
+
+    def pids(self) -> list[int]:
+        out = _ip("netns", "pids", self.name, check=False)
+        return [int(p) for p in out.split()]
+
+    def destroy(self) -> None:
+        for pid in self.pids():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        _ip("netns", "del", self.name, check=False)
+        if self.host_if:  # normally gone with its peer; not if the peer never moved in
+            _ip("link", "del", self.host_if, check=False)
 
 
 @dataclass
@@ -143,10 +289,21 @@ class BaseTopology:
       * `start(name, extra)`: one more running replica of an application service (api,
         worker) with `extra` environment variables; returns it once started (the api: once
         /health answers);
-      * `wait_workers_ready(count)`, `url(path)` of the API, `logs()`, `stop_all()`.
+      * `wait_workers_ready(count)`, `url(path)` of the API, `logs()`, `stop_all()`;
+      * the workers' network link: `worker_link_unavailable` (None where the workers run on a
+        host of their own whose link the tests can cut, else why not: the partition drill
+        skips with that reason), `cut_worker_link()` (from then on the workers' packets to and
+        from Redis and PostgreSQL vanish without an answer) and `restore_worker_link()`.
     """
 
     procs: dict
+    worker_link_unavailable: str | None = "this topology cannot cut the workers' link"
+
+    def cut_worker_link(self) -> None:
+        raise NotImplementedError(self.worker_link_unavailable)
+
+    def restore_worker_link(self) -> None:
+        raise NotImplementedError(self.worker_link_unavailable)
 
     def start_redis(self) -> None:
         raise NotImplementedError
@@ -218,10 +375,57 @@ class LocalTopology(BaseTopology):
     database: str = ""
     database_url: str = ""
     mode: str = "local"
+    #: Run the workers on a host of their own (a network namespace) where one can be made.
+    netns: bool = True
+    worker_host: NetnsHost | None = None
+    worker_link_unavailable: str | None = None
+    pg_link_port: int = 0
 
     def __post_init__(self) -> None:
         self.compose = yaml.safe_load(COMPOSE.read_text())
         self.workdir.mkdir(parents=True, exist_ok=True)
+        self.worker_link_unavailable = (netns_unavailable() if self.netns else
+                                        "LocalTopology(netns=False): workers on this host")
+        if self.worker_link_unavailable is None:
+            self.worker_host = NetnsHost.create()
+
+    # -- the workers' host -------------------------------------------------------------------
+    def _start_pg_link(self) -> None:
+        """The worker host's way to PostgreSQL: a forwarder on the link's root side
+        (tcp_forward.py), since the server listens on the root namespace's loopback only."""
+        h = self.worker_host
+        if h is None or "pg-link" in self.procs:
+            return
+        target = sa_url(PG_ADMIN_URL)
+        self.pg_link_port = self.pg_link_port or free_port(h.host_addr)
+        argv = [sys.executable, str(Path(__file__).with_name("tcp_forward.py")), h.host_addr,
+                str(self.pg_link_port), target.host or "127.0.0.1", str(target.port or 5432)]
+        p = Proc("pg-link", argv, dict(os.environ), self.workdir / "pg-link.log")
+        p.start()
+        self.procs["pg-link"] = [p]
+        self._wait(lambda: "listening" in p.tail(5), "pg-link forwarder", 15, p)
+
+    def workers_answering(self, timeout: float = 1.0) -> list[str]:
+        """Node names of the Celery workers that answer a broadcast ping now (sent from the
+        root namespace: a worker answers only once its broker connection works again)."""
+        from celery import Celery
+
+        app = Celery("cmrt-it-ping", broker=f"redis://127.0.0.1:{self.redis_port}/0")
+        try:
+            replies = app.control.ping(timeout=timeout)
+        finally:
+            app.close()
+        return sorted(name for r in replies for name in r)
+
+    def cut_worker_link(self) -> None:
+        if self.worker_host is None:
+            raise RuntimeError(self.worker_link_unavailable)
+        self.worker_host.cut()
+
+    def restore_worker_link(self) -> None:
+        if self.worker_host is None:
+            raise RuntimeError(self.worker_link_unavailable)
+        self.worker_host.restore()
 
     # -- infrastructure ----------------------------------------------------------------------
     def _service(self, name: str) -> dict:
@@ -234,8 +438,11 @@ class LocalTopology(BaseTopology):
         self.redis_port = self.redis_port or free_port()
         data = self.workdir / "redis"
         data.mkdir(exist_ok=True)
-        argv += ["--port", str(self.redis_port), "--bind", "127.0.0.1", "--dir", str(data),
+        bind = ["127.0.0.1"] + ([self.worker_host.host_addr] if self.worker_host else [])
+        argv += ["--port", str(self.redis_port), "--bind", *bind, "--dir", str(data),
                  "--save", ""]
+        if self.worker_host:  # reachable only from loopback and the worker host's private link
+            argv += ["--protected-mode", "no"]
         p = Proc("redis", argv, dict(os.environ), self.workdir / "redis.log")
         p.start()
         self.procs["redis"] = [p]
@@ -259,6 +466,7 @@ class LocalTopology(BaseTopology):
         from store import init_db
 
         init_db(self.database_url).dispose()
+        self._start_pg_link()
 
     def drop_database_connections(self) -> int:
         """Terminate every session of the test database, as a PostgreSQL restart does to its
@@ -290,11 +498,18 @@ class LocalTopology(BaseTopology):
             env.pop(k, None)
         for k, v in (self._service(name).get("environment") or {}).items():
             env[k] = interpolate(v, {**self.overrides})
-        redis = f"redis://127.0.0.1:{self.redis_port}"
+        across = name == "worker" and self.worker_host is not None
+        redis_host = self.worker_host.host_addr if across else "127.0.0.1"
+        redis = f"redis://{redis_host}:{self.redis_port}"
         for k, v in list(env.items()):
             if isinstance(v, str) and "redis://redis:6379" in v:
                 env[k] = v.replace("redis://redis:6379", redis)
         env["CMRT_DATABASE_URL"] = self.database_url
+        if across:  # PostgreSQL through the forwarder on the link's root side
+            url = sa_url(self.database_url)
+            env["CMRT_DATABASE_URL"] = url.set(host=self.worker_host.host_addr,
+                                               port=self.pg_link_port).render_as_string(
+                                                   hide_password=False)
         env.update(self.overrides)
         env.update(extra or {})
         env.pop("NUMBA_CACHE_DIR", None)  # use the checkout's warm cache (see warm_up)
@@ -318,6 +533,8 @@ class LocalTopology(BaseTopology):
         p = Proc(f"{name}-{n}", self.argv_for(name, env), env, self.workdir / f"{name}-{n}.log")
         if name == "worker":
             p.argv += ["--hostname", f"worker{n}-{uuid.uuid4().hex[:4]}@%h"]
+            if self.worker_host is not None:
+                p.argv = self.worker_host.wrap(p.argv)
         p.start()
         self.procs.setdefault(name, []).append(p)
         if name == "api":
@@ -351,10 +568,12 @@ class LocalTopology(BaseTopology):
         return f"http://127.0.0.1:{self.api_port}{path}"
 
     def stop_all(self) -> None:
-        for name in ("api", "worker"):
+        for name in ("api", "worker", "pg-link"):
             for p in self.procs.get(name, []):
                 p.stop()
         self.stop_redis()
+        if self.worker_host is not None:
+            self.worker_host.destroy()
 
     def logs(self) -> str:
         return "\n".join(f"--- {p.name} ---\n{p.tail(60)}"
@@ -412,6 +631,8 @@ class ComposeTopology(BaseTopology):
     """The topology run by `docker compose` itself (see module docstring)."""
 
     mode = "compose"
+    worker_link_unavailable = ("compose mode: cutting a container's link is not implemented; "
+                               "the partition drill runs in local mode (CMRT_IT_MODE=local)")
 
     def __init__(self, workdir: Path, overrides: dict[str, str] | None = None,
                  docker: str = "docker") -> None:

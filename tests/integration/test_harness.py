@@ -184,3 +184,166 @@ def test_compose_session_as_the_topology_tests_drive_it(fake_docker, tmp_path):
 
     topo.stop_all()
     assert _compose_calls(fake_docker, "down")[-1][:2] == ["down", "-v"]
+
+
+# -- the worker host (network namespace) and the PostgreSQL forwarder, for real ---------------
+
+def _needs_netns():
+    from harness import netns_unavailable
+
+    reason = netns_unavailable()
+    if reason:
+        pytest.skip(reason)
+
+
+def _echo_server(host: str):
+    """A one-connection-at-a-time echo server on (host, free port), in a thread."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    srv.bind((host, 0))
+    srv.listen()
+
+    def serve():
+        while True:
+            try:
+                c, _ = srv.accept()
+            except OSError:
+                return
+            with c:
+                while data := c.recv(4096):
+                    c.sendall(data)
+
+    threading.Thread(target=serve, daemon=True).start()
+    return srv
+
+
+def _run_in(host, code: str, timeout: float = 20) -> str:
+    import subprocess
+
+    r = subprocess.run(host.wrap([sys.executable, "-c", code]), capture_output=True, text=True,
+                       timeout=timeout)
+    assert r.returncode == 0, r.stderr
+    return r.stdout.strip()
+
+
+def test_worker_host_link_forwarder_cut_restore_and_cleanup(tmp_path):
+    """A NetnsHost reaches the root namespace only at its link's root side; the forwarder there
+    carries a connection to a server on the root loopback; a cut silences an established
+    connection and refuses new ones; a restore brings both back; destroy leaves nothing."""
+    import subprocess
+
+    from harness import NetnsHost, Proc, free_port
+
+    _needs_netns()
+    host = NetnsHost.create()
+    srv = _echo_server("127.0.0.1")
+    fwd = None
+    try:
+        assert host.name in subprocess.run(["ip", "netns", "list"], capture_output=True,
+                                           text=True).stdout
+        port = free_port(host.host_addr)
+        fwd = Proc("fwd", [sys.executable, str(Path(__file__).with_name("tcp_forward.py")),
+                           host.host_addr, str(port), "127.0.0.1",
+                           str(srv.getsockname()[1])], dict(os.environ), tmp_path / "fwd.log")
+        fwd.start()
+        for _ in range(100):
+            if "listening" in fwd.tail(5):
+                break
+            import time
+
+            time.sleep(0.05)
+        connect = (f"import socket; s = socket.create_connection(({host.host_addr!r}, {port}), "
+                   "timeout=3); s.sendall(b'ping'); print(s.recv(4).decode())")
+        assert _run_in(host, connect) == "ping"  # through the link and the forwarder
+        loopback = ("import socket\ntry:\n socket.create_connection(('127.0.0.1', "
+                    f"{srv.getsockname()[1]}), timeout=2); print('reached')\n"
+                    "except OSError: print('refused')")
+        assert _run_in(host, loopback) == "refused"  # the root loopback is another host's
+
+        # an established connection across a cut: silent while cut, alive after the restore
+        code = f"""
+import socket, sys
+s = socket.create_connection(({host.host_addr!r}, {port}), timeout=3)
+s.sendall(b'a'); assert s.recv(1) == b'a'
+print('up', flush=True); sys.stdin.readline()          # the link is cut now
+s.settimeout(1.5); s.sendall(b'b')
+try:
+    s.recv(1); print('answered', flush=True)
+except TimeoutError:
+    print('silent', flush=True)
+try:
+    socket.create_connection(({host.host_addr!r}, {port}), timeout=2); print('connected')
+except OSError as err:
+    print('no new connection', flush=True)
+sys.stdin.readline()                                    # restored
+s.settimeout(10); print('late answer', s.recv(1).decode(), flush=True)
+"""
+        p = subprocess.Popen(host.wrap([sys.executable, "-c", code]), stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+        assert p.stdout.readline().strip() == "up"
+        host.cut()
+        assert not host.link_up
+        p.stdin.write("\n")
+        p.stdin.flush()
+        assert p.stdout.readline().strip() == "silent"
+        assert p.stdout.readline().strip() == "no new connection"
+        host.restore()
+        assert host.link_up
+        p.stdin.write("\n")
+        p.stdin.flush()
+        assert p.stdout.readline().strip() == "late answer b"  # TCP retransmitted it
+        assert p.wait(timeout=10) == 0
+    finally:
+        if fwd is not None:
+            fwd.stop()
+        srv.close()
+        host.destroy()
+    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    assert host.name not in listed
+    links = subprocess.run(["ip", "-br", "link"], capture_output=True, text=True).stdout
+    assert host.host_if not in links
+
+
+def test_stale_worker_hosts_of_dead_runs_are_swept():
+    """A namespace named after a test process that is gone (a run killed before its finalizers)
+    is removed, with what runs in it, by the next NetnsHost.create; live runs' are kept."""
+    import subprocess
+
+    from harness import NETNS_PREFIX, NetnsHost, sweep_stale_netns
+
+    _needs_netns()
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = f"{NETNS_PREFIX}{dead.pid}-0badc0"
+    live = NetnsHost.create()  # named after this (live) process
+    subprocess.run(["ip", "netns", "add", stale], check=True)
+    sleeper = subprocess.Popen(["ip", "netns", "exec", stale, "sleep", "60"])
+    try:
+        removed = sweep_stale_netns()
+        assert stale in removed and live.name not in removed
+        assert sleeper.wait(timeout=10) != 0  # killed with its namespace
+        listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+        assert stale not in listed and live.name in listed
+    finally:
+        sleeper.kill()
+        subprocess.run(["ip", "netns", "del", stale], capture_output=True)
+        live.destroy()
+
+
+def test_worker_host_unavailable_gives_a_reason(monkeypatch, tmp_path):
+    """Without root, without `ip`, or turned off, the reason the partition drill skips with."""
+    import harness
+
+    monkeypatch.setenv("CMRT_IT_NETNS", "0")
+    assert "CMRT_IT_NETNS=0" in harness.netns_unavailable()
+    monkeypatch.delenv("CMRT_IT_NETNS")
+    monkeypatch.setattr(harness.shutil, "which", lambda name: None)
+    assert "`ip` (iproute2) not found" in harness.netns_unavailable()
+    monkeypatch.setattr(harness.shutil, "which", lambda name: f"/usr/sbin/{name}")
+    monkeypatch.setattr(harness.os, "geteuid", lambda: 1000)
+    assert "not root" in harness.netns_unavailable()
+    topo = LocalTopology(tmp_path / "run", netns=False)
+    assert topo.worker_host is None and "netns=False" in topo.worker_link_unavailable

@@ -8,6 +8,9 @@ worker, the driver or the broker died under them).
 from __future__ import annotations
 
 import json
+import os
+import re
+import subprocess
 import time
 
 import pytest
@@ -52,6 +55,28 @@ def test_jobs_converge_land_in_library_and_interpolate_and_cancel(api):
     assert {a, b} <= {j["id"] for j in listed["items"]}
     health = api.get("/health").json()
     assert health["database"] == "ok" and health["broker"] == "ok"
+
+
+def test_workers_run_on_a_host_of_their_own(topology):
+    """Where namespaces can be made, every worker runs in the worker host's network namespace
+    and talks to Redis and PostgreSQL across its link (the first test above ran through it)."""
+    host = getattr(topology, "worker_host", None)
+    if host is None:
+        pytest.skip(f"workers on the test host: {topology.worker_link_unavailable}")
+    root = os.readlink("/proc/self/ns/net")
+    workers = [p for p in topology.procs["worker"] if p.alive]
+    assert workers and set(host.pids()) >= {p.popen.pid for p in workers}
+    for p in workers:
+        assert os.readlink(f"/proc/{p.popen.pid}/ns/net") != root
+        assert host.host_addr in p.env["CMRT_BROKER_URL"]
+        assert f"{host.host_addr}:{topology.pg_link_port}" in p.env["CMRT_DATABASE_URL"]
+    links = subprocess.run(host.wrap(["ss", "-tnH", "state", "established"]),
+                           capture_output=True, text=True, check=True).stdout
+    peers = {ln.split()[-1] for ln in links.splitlines()}
+    assert f"{host.host_addr}:{topology.redis_port}" in peers, links
+    if any("succeeded in" in p.log.read_text(errors="replace") for p in workers):
+        # a worker that ran a task keeps its database connection (through the forwarder)
+        assert f"{host.host_addr}:{topology.pg_link_port}" in peers, links
 
 
 def _wait_mid_generation(api, job_id, generation, timeout=90):
@@ -183,3 +208,92 @@ def test_bad_input_gets_4xx_and_stores_nothing(api):
     assert api.get("/jobs").json()["total"] == before
     r = api.get("/cmrts", params={"family": "it_bend", "duration": "x"})
     assert r.status_code == 422 and "duration" in r.json()["detail"]
+
+
+#: How long the partition drill keeps the worker host's link cut, s: longer than every timeout
+#: on that link that could notice the silence: the driver's stall timeout (CMRT_STALL_TIMEOUT,
+#: 6 s in conftest: it sends the unresolved evaluations again), Celery's broker connection
+#: timeout (3 s), the tasks' time limits (CMRT_EVAL_TIME_LIMIT, 20 s) and kombu's check of an
+#: overdue BRPOP reply (brpop_timeout 1 s + health_check_interval 25 s); shorter than the
+#: driver's broker deadline (45 s), which concerns the driver's own link to Redis (not cut).
+#: CMRT_IT_PARTITION_S overrides it (to try longer cuts by hand).
+PARTITION_S = float(os.environ.get("CMRT_IT_PARTITION_S", "30"))
+#: A job not finished this long after the link is back counts as hung, s.
+RECOVERY_LIMIT_S = 90.0
+
+
+def _log_since(proc, offset: int) -> str:
+    return proc.log.read_text(errors="replace")[offset:]
+
+
+def test_worker_link_cut_mid_generation_then_restored(api, topology):
+    """Partition drill: the worker host's link is cut while generation 1 is half done (its
+    candidate 0 held open by the delay hook, so a worker is mid-evaluation), kept cut for
+    PARTITION_S, then restored. The job completes with every evaluation stored once (none
+    lost, none failed) within RECOVERY_LIMIT_S of the restore, or fails with an error naming
+    the cause; it never hangs. Every worker answers a broadcast ping again (Celery reconnected
+    by itself). Prints the bookkeeping, the timings and what the workers and the driver
+    logged."""
+    if topology.worker_link_unavailable:
+        pytest.skip(f"partition drill: {topology.worker_link_unavailable}")
+    workers = [p for p in topology.procs["worker"] if p.alive]
+    names = topology.workers_answering(timeout=2.0)
+    assert len(names) == len(workers), names
+    t0 = time.monotonic()
+    job_id = submit(api, bend("it_fault_partition", 0.35, popsize=6, max_evaluations=18), seed=7)
+    g = _wait_mid_generation(api, job_id, 1)
+    offsets = {p.name: len(p.log.read_text(errors="replace")) for p in workers}
+    driver = topology.procs["api"][-1]
+    driver_offset = len(driver.log.read_text(errors="replace"))
+    t_cut = time.monotonic()
+    topology.cut_worker_link()
+    try:
+        during = []  # results stored, every second of the cut
+        while time.monotonic() - t_cut < PARTITION_S:
+            gens = api.get(f"/jobs/{job_id}/evaluations").json()["generations"]
+            during.append(sum(x["done"] for x in gens))
+            time.sleep(1.0)
+        answering_during = topology.workers_answering(timeout=1.0)
+    finally:
+        topology.restore_worker_link()
+    t_restore = time.monotonic()
+    job = wait_job(api, job_id, RECOVERY_LIMIT_S)
+    t_end = time.monotonic()
+    answering, t_ping = [], None
+    while time.monotonic() - t_restore < RECOVERY_LIMIT_S:
+        answering = topology.workers_answering(timeout=1.0)
+        if len(answering) == len(workers):
+            t_ping = time.monotonic()
+            break
+    logs = {p.name: _log_since(p, offsets[p.name]) for p in workers}
+    driver_log = _log_since(driver, driver_offset)
+    resends = driver_log.count("unresolved evaluations again")
+    print(f"\n[partition] cut at generation 1 {g}; link down {t_restore - t_cut:.1f} s; "
+          f"results stored during the cut {during}; workers answering a ping during the cut: "
+          f"{len(answering_during)}; job {job['status']} {t_end - t_restore:.1f} s after the "
+          f"restore, {t_end - t0:.1f} s after submit; all {len(workers)} workers answer a ping "
+          + (f"{t_ping - t_restore:.1f} s after the restore" if t_ping else "NOT")
+          + f"; the driver sent the unresolved evaluations again {resends} times")
+    for name, text in logs.items():
+        longest = max((float(m) for m in re.findall(r"succeeded in ([0-9.]+)s", text)),
+                      default=0.0)
+        counts = {what: text.count(needle) for what, needle in (
+            ("tasks received", " received"), ("tasks raised", "raised unexpected"),
+            ("soft limits", "Soft time limit"), ("hard limits", "Hard time limit"),
+            ("pool processes lost", "exited with"), ("failed acks", "Couldn't ack"),
+            ("broker connections lost", "Connection to broker lost"),
+            ("(re)connections", "Connected to"))}
+        notable = [ln for ln in text.splitlines() if any(k in ln for k in (
+            "WARNING", "ERROR", "CRITICAL", "consumer:", "Connected"))]
+        print(f"--- {name} since the cut: longest task {longest:.1f} s; "
+              + ", ".join(f"{k} {v}" for k, v in counts.items()) + "; notable lines:\n"
+              + "\n".join(ln[:240] for ln in notable[:10]))
+    print("--- driver since the cut:\n" + "\n".join(
+        ln for ln in driver_log.splitlines() if "HTTP/1.1" not in ln)[-2000:])
+    assert during[0] == during[-1] == max(during), f"results stored through a cut link: {during}"
+    if job["status"] == "failed":  # allowed only with a clear reason
+        assert any(k in job["error"] for k in ("broker", "database", "unreachable")), job
+    else:
+        _, book = _check_complete(api, job_id, "worker link cut and restored")
+        assert book["repeated"] <= 6
+    assert t_ping is not None, f"workers answering after the restore: {answering}"

@@ -9,7 +9,6 @@ from cmrt.settings import Settings
 from optim.executors import SerialExecutor
 from optim.synthetic import Sphere
 from store import open_repository
-from worker.config import WorkerConfig
 from worker.executors import LocalPoolExecutor
 
 
@@ -21,8 +20,8 @@ def settings(tmp_path):
 
 @pytest.fixture
 def config(settings):
-    return WorkerConfig(settings, poll_interval=0.02, scan_interval=0.1, stall_timeout=1.0,
-                        broker_deadline=2.0)
+    return settings.model_copy(update={"poll_interval": 0.02, "scan_interval": 0.1,
+                                       "stall_timeout": 1.0, "broker_deadline": 2.0})
 
 
 @pytest.fixture

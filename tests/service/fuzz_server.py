@@ -25,7 +25,6 @@ from optim.synthetic import Sphere  # noqa: E402
 from service.app import create_app  # noqa: E402
 from service.schemas import JOB_EXAMPLE  # noqa: E402
 from store import open_repository  # noqa: E402
-from worker.config import WorkerConfig  # noqa: E402
 from worker.executors import LocalPoolExecutor  # noqa: E402
 
 TERMINAL = ("converged", "stopped", "failed", "cancelled")
@@ -33,10 +32,10 @@ TERMINAL = ("converged", "stopped", "failed", "cancelled")
 
 def seed_library(settings: Settings) -> dict[str, str]:
     repo = open_repository(settings.database_url)
-    config = WorkerConfig(settings, poll_interval=0.02, scan_interval=0.1)
+    config = settings.model_copy(update={"poll_interval": 0.02, "scan_interval": 0.1})
     executor = LocalPoolExecutor(config, pool=SerialExecutor(),
                                  objective_factory=lambda spec: Sphere(centre=0.3))
-    with TestClient(create_app(settings, repo=repo, executor=executor, config=config)) as c:
+    with TestClient(create_app(config, repo=repo, executor=executor)) as c:
         jobs = [c.post("/jobs", json=bend_spec(f"bend_{i}", d)).json()["id"]
                 for i, d in enumerate((0.3, 0.4, 0.5))]
         deadline = time.monotonic() + 60

@@ -14,7 +14,7 @@ from service.app import create_app
 
 @pytest.fixture
 def client(settings, config, repo, local_executor):
-    app = create_app(settings, repo=repo, executor=local_executor, config=config)
+    app = create_app(config, repo=repo, executor=local_executor)
     with TestClient(app) as c:
         yield c
 
@@ -96,7 +96,7 @@ def test_basis_and_reduced_space_job(client):
 
 
 def test_cancel(client):
-    j = _submit(client, bend_spec(max_evaluations=100000, min_evaluations=100000))
+    j = _submit(client, bend_spec(max_evaluations=50000, min_evaluations=50000))
     time.sleep(0.3)
     r = client.post(f"/jobs/{j}/cancel")
     assert r.status_code == 202
@@ -159,3 +159,19 @@ def test_health_openapi_dashboard(client):
     for text in (page.text, script.text, client.get("/static/dashboard.css").text):
         assert "http://" not in text.replace("http://www.w3.org/2000/svg", "")
         assert "https://" not in text
+
+
+def test_budget_is_shown_and_a_job_above_the_ceiling_is_refused(client, repo):
+    r = client.post("/jobs", json=bend_spec("small", 0.3))
+    assert r.status_code == 202
+    b = r.json()["budget"]
+    assert b["evaluations"] == 12 + 3 + 2 and b["clip_seconds"] == pytest.approx(0.8)
+    assert b["sim_seconds"] == pytest.approx(17 * 0.8) and b["ceiling_sim_seconds"] == 50_000
+    huge = bend_spec("huge", 0.3, popsize=60, max_evaluations=100_000)
+    huge["clip"] = {"preparation": 1.0, "duration": 10.0, "decay": 9.0}
+    _, before = repo.list_jobs()
+    r = client.post("/jobs", json=huge)
+    assert r.status_code == 422
+    assert r.json()["detail"].startswith("optimize.max_evaluations: the job may simulate up to "
+                                         "2,001,220 s")
+    assert repo.list_jobs()[1] == before  # nothing stored

@@ -75,7 +75,7 @@ def test_half_done_generation_is_not_evaluated_again(repo, config):
     xs = opt.ask()
     repo.put_pending_evaluations(job.id, 1, [list(x) for x in xs])
     for i in (0, 1):
-        repo.record_evaluation(job.id, 1, i, objective=0.5, fell=False, cpu_seconds=0.0)
+        repo.store_result(job.id, 1, i, objective=0.5, fell=False, cpu_seconds=0.0)
     calls.clear()
     assert JobDriver(repo, job.id, ex, config).run() == STOPPED
     rows = repo.evaluations(job.id, 1)
@@ -131,3 +131,29 @@ def test_lease_held_elsewhere_means_no_second_driver(repo, config, local_executo
     assert repo.acquire_driver_lease(job.id, "other", 60)
     assert JobDriver(repo, job.id, local_executor, config).run() is None
     assert repo.get_job(job.id).status == "queued"
+
+
+@pytest.mark.parametrize(("duration", "winner"), [(0.3, "flat"), (0.4, "search")])
+def test_library_entry_is_never_worse_than_the_flat_spline(repo, config, duration, winner):
+    """Issue 11's case on real physics: a bend job stopped by its cap (popsize 4,
+    max_evaluations 8). At T = 0.3 s (seed 0) the best of 8 candidates is worse than no
+    anticipation, so the entry is the flat spline; at T = 0.4 s the search wins."""
+    from optim.spline import flat_params
+
+    spec = bend_spec(duration=duration, popsize=4, max_evaluations=8)
+    spec["clip"] = {"preparation": 0.5, "duration": duration, "decay": 0.6}
+    spec["task"] = {"type": "pose_change",
+                    "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}}
+    job = _job(repo, spec, seed=0)
+    ex = LocalPoolExecutor(config, pool=SerialExecutor())  # the real simulation objective
+    assert JobDriver(repo, job.id, ex, config).run() == STOPPED
+    entry = repo.job_cmrt(job.id)
+    best, flat = repo.evaluations(job.id, FINAL_GENERATION)[::-1]  # index 0 flat, 1 best
+    assert entry.winner == winner
+    assert entry.objective_without == flat.objective
+    assert entry.objective == min(best.objective, flat.objective) <= entry.objective_without
+    if winner == "flat":
+        assert best.objective > flat.objective
+        assert entry.params == pytest.approx(list(flat_params(parse_spec(spec))))
+    else:
+        assert entry.params == pytest.approx(best.params)

@@ -15,8 +15,7 @@ from sim.spec import parse_spec
 
 @pytest.fixture
 def client(settings, config, repo, local_executor):
-    app = create_app(settings, repo=repo, executor=local_executor, config=config,
-                     run_drivers=False)
+    app = create_app(config, repo=repo, executor=local_executor, run_drivers=False)
     with TestClient(app) as c:
         yield c
 

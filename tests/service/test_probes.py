@@ -17,8 +17,7 @@ JSON = {"content-type": "application/json"}
 
 @pytest.fixture
 def client(settings, config, repo, local_executor):
-    app = create_app(settings, repo=repo, executor=local_executor, config=config,
-                     run_drivers=False)
+    app = create_app(config, repo=repo, executor=local_executor, run_drivers=False)
     with TestClient(app) as c:
         yield c
 

@@ -18,9 +18,8 @@ TOKEN = "s3cret-token"
 
 
 def _client(settings, repo, executor, config, **overrides):
-    s = settings.model_copy(update=overrides)
-    return TestClient(create_app(s, repo=repo, executor=executor, config=config,
-                                 run_drivers=False))
+    s = config.model_copy(update=overrides)
+    return TestClient(create_app(s, repo=repo, executor=executor, run_drivers=False))
 
 
 @pytest.fixture

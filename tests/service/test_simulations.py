@@ -33,7 +33,7 @@ def _wait(client, job_id, timeout=30.0):
 @pytest.fixture
 def client(settings, config, repo, local_executor):
     # jobs are driven with the synthetic objective (local_executor); simulations are real clips
-    app = create_app(settings, repo=repo, executor=local_executor, config=config)
+    app = create_app(config, repo=repo, executor=local_executor)
     with TestClient(app) as c:
         yield c
 
@@ -101,8 +101,8 @@ def test_job_without_best_yet(client, repo):
 
 
 def test_time_limit_is_a_failed_status(settings, config, repo, local_executor):
-    s = settings.model_copy(update={"eval_time_limit": 0.05})
-    with TestClient(create_app(s, repo=repo, executor=local_executor, config=config,
+    s = config.model_copy(update={"eval_time_limit": 0.05})
+    with TestClient(create_app(s, repo=repo, executor=local_executor,
                                run_drivers=False)) as c:
         long = {**QUIET, "clip": {"preparation": 1.0, "duration": 5.0, "decay": 1.0}}
         r = c.post("/simulations", json={"spec": long})

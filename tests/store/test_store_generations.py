@@ -1,5 +1,5 @@
-"""Contract: generations (checkpointing the optimizer) and evaluations (idempotent upserts,
-attempt counting, exact generation counts under concurrency)."""
+"""Contract: generations (checkpointing the optimizer) and evaluations (first result wins,
+attempt counting, exact counts under concurrency)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import threading
 
 import numpy as np
 import pytest
+from store_helpers import get_evaluation, get_optimizer_state
 
 from store.db import make_engine
 from store.errors import NotFound
@@ -38,7 +39,7 @@ def figures(best: float, evaluations: int, **kw):
 # ---- generations -------------------------------------------------------------------------
 def test_record_generation_updates_the_job(repo: SqlRepository) -> None:
     job = new_job(repo)
-    assert repo.latest_generation(job.id) is None and repo.get_optimizer_state(job.id) is None
+    assert repo.latest_generation(job.id) is None and get_optimizer_state(repo, job.id) is None
     g0 = repo.record_generation(job.id, 0, **figures(5.0, 10, best_params=[0.1, 0.2]))
     assert (g0.iteration, g0.best, g0.evaluations) == (0, 5.0, 10)
     assert pickle.loads(g0.optimizer_state) == {"evaluations": 10}
@@ -48,7 +49,7 @@ def test_record_generation_updates_the_job(repo: SqlRepository) -> None:
     rec = repo.get_job(job.id)
     assert (rec.iterations, rec.evaluations) == (3, 30)
     assert rec.best_objective == 3.0 and rec.best_params == [0.3, 0.4]
-    assert pickle.loads(repo.get_optimizer_state(job.id)) == {"evaluations": 30}
+    assert pickle.loads(get_optimizer_state(repo, job.id)) == {"evaluations": 30}
     latest = repo.latest_generation(job.id)
     assert latest.iteration == 2 and pickle.loads(latest.optimizer_state)["evaluations"] == 30
     assert latest.candidates == [[0.1, 0.2], [0.3, 0.4]]
@@ -70,7 +71,7 @@ def test_record_generation_is_idempotent(repo: SqlRepository) -> None:
     assert (rec.iterations, rec.evaluations, rec.best_objective) == (1, 10, 5.0)
     assert rec.best_params is None
     assert len(repo.generations(job.id)) == 1
-    assert pickle.loads(repo.get_optimizer_state(job.id)) == {"evaluations": 10}
+    assert pickle.loads(get_optimizer_state(repo, job.id)) == {"evaluations": 10}
 
 
 def test_late_older_generation_does_not_rewind_the_state(repo: SqlRepository) -> None:
@@ -79,7 +80,7 @@ def test_late_older_generation_does_not_rewind_the_state(repo: SqlRepository) ->
     repo.record_generation(job.id, 0, **figures(1.0, 10))
     rec = repo.get_job(job.id)
     assert rec.iterations == 2 and rec.evaluations == 20 and rec.best_objective == 1.0
-    assert pickle.loads(repo.get_optimizer_state(job.id)) == {"evaluations": 20}
+    assert pickle.loads(get_optimizer_state(repo, job.id)) == {"evaluations": 20}
     assert repo.latest_generation(job.id).iteration == 1
 
 
@@ -124,167 +125,9 @@ def test_pending_evaluations_are_idempotent(repo: SqlRepository) -> None:
         repo.put_pending_evaluations("nope", 0, params)
 
 
-def test_record_evaluation_upsert_is_idempotent(repo: SqlRepository) -> None:
-    job = new_job(repo)
-    repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5], [0.6, 0.6]])
-    assert repo.start_attempt(job.id, 0, 0).attempts == 1
-    out = repo.record_evaluation(
-        job.id, 0, 0, objective=1.25, fell=False, cpu_seconds=0.5, details={"fall_time": None}
-    )
-    assert out.changed and out.record.status == "done" and out.record.objective == 1.25
-    assert out.counts == GenerationCounts(pending=1, done=1)
-
-    dup = repo.record_evaluation(job.id, 0, 0, objective=9.0, fell=True, cpu_seconds=3.0)
-    assert not dup.changed
-    assert dup.record == out.record and dup.counts == out.counts
-    assert repo.count_done(job.id, 0) == 1
-    # a redelivered task for a finished candidate does not count an attempt
-    assert repo.start_attempt(job.id, 0, 0).attempts == 1
-    got = repo.get_evaluation(job.id, 0, 0)
-    assert (got.objective, got.fell, got.cpu_seconds, got.attempts) == (1.25, False, 0.5, 1)
-    assert got.details == {"fall_time": None}
-
-
-def test_record_evaluation_without_pending_row_creates_it(repo: SqlRepository) -> None:
-    job = new_job(repo)
-    out = repo.record_evaluation(
-        job.id, 3, 2, objective=0.5, fell=True, cpu_seconds=1.0, params=[0.1, 0.9]
-    )
-    assert out.changed and out.record.attempts == 1 and out.record.params == [0.1, 0.9]
-    assert out.record.fell is True
-    with pytest.raises(NotFound):
-        repo.record_evaluation("nope", 0, 0, objective=1.0, fell=False, cpu_seconds=0.1)
-    with pytest.raises(ValueError):
-        repo.record_evaluation(job.id, 3, 3, objective=None, fell=False, cpu_seconds=0.1)
-    with pytest.raises(ValueError):
-        repo.record_evaluation(job.id, 3, 3, objective=float("nan"), fell=False, cpu_seconds=0)
-
-
-def test_attempts_are_bounded_by_the_caller(repo: SqlRepository) -> None:
-    """A candidate that kills its worker every time: attempts count up, then it fails."""
-    max_attempts = 3
-    job = new_job(repo)
-    repo.put_pending_evaluations(job.id, 0, [[0.1], [0.2]])
-    for n in range(1, max_attempts + 1):
-        rec = repo.start_attempt(job.id, 0, 1)
-        assert rec.attempts == n and rec.status == "pending"  # ... and the worker dies
-    rec = repo.start_attempt(job.id, 0, 1)
-    assert rec.attempts > max_attempts
-    out = repo.fail_evaluation(job.id, 0, 1, f"gave up after {max_attempts} attempts")
-    assert out.changed and out.record.status == "failed" and out.record.objective is None
-    assert out.counts == GenerationCounts(pending=1, failed=1)
-    # no more attempts or results for a failed candidate
-    assert repo.start_attempt(job.id, 0, 1).attempts == rec.attempts
-    late = repo.record_evaluation(job.id, 0, 1, objective=1.0, fell=False, cpu_seconds=1.0)
-    assert not late.changed and late.record.status == "failed"
-    with pytest.raises(NotFound):
-        repo.start_attempt(job.id, 0, 7)
-
-
-def test_exactly_one_write_closes_a_generation(repo: SqlRepository) -> None:
-    job = new_job(repo)
-    n = 5
-    repo.put_pending_evaluations(job.id, 0, [[i / n] for i in range(n)])
-    closers = []
-    for i in [0, 1, 1, 2, 3, 3, 4, 4, 0]:
-        out = repo.record_evaluation(job.id, 0, i, objective=float(i), fell=False, cpu_seconds=0)
-        if out.changed and out.counts.resolved == n:
-            closers.append(i)
-    assert closers == [4]
-    assert repo.evaluation_counts(job.id, 0) == GenerationCounts(done=n)
-
-
 # ---- concurrency -------------------------------------------------------------------------
 POP = 12
 WRITERS = 3
-
-
-def _write_results(repo: SqlRepository, job_id: str, seed: int) -> list[tuple[int, bool, int]]:
-    """Start and record every candidate of generation 0 in a shuffled order."""
-    order = list(range(POP))
-    random.Random(seed).shuffle(order)
-    seen = []
-    for i in order:
-        repo.start_attempt(job_id, 0, i)
-        out = repo.record_evaluation(
-            job_id, 0, i, objective=float(i), fell=i % 2 == 0, cpu_seconds=0.01 * seed
-        )
-        seen.append((i, out.changed, out.counts.resolved))
-    return seen
-
-
-def _child(url: str, job_id: str, seed: int, queue) -> None:
-    engine = make_engine(url)
-    try:
-        queue.put(_write_results(SqlRepository(engine), job_id, seed))
-    finally:
-        engine.dispose()
-
-
-def _check_concurrent_outcome(repo: SqlRepository, job_id: str, runs) -> None:
-    writes = [w for run in runs for w in run]
-    changed = sorted(i for i, ch, _ in writes if ch)
-    assert changed == list(range(POP)), "each candidate counted exactly once"
-    closers = [w for w in writes if w[1] and w[2] == POP]
-    assert len(closers) == 1, "exactly one write sees the generation complete"
-    evs = repo.evaluations(job_id, 0)
-    assert [e.status for e in evs] == ["done"] * POP
-    assert [e.objective for e in evs] == [float(i) for i in range(POP)]
-    assert all(1 <= e.attempts <= WRITERS for e in evs)
-    assert repo.evaluation_counts(job_id, 0) == GenerationCounts(done=POP)
-
-
-def test_concurrent_results_from_threads(repo: SqlRepository) -> None:
-    job = new_job(repo)
-    repo.put_pending_evaluations(job.id, 0, [[i / POP] for i in range(POP)])
-    runs: list = []
-    barrier = threading.Barrier(WRITERS)
-
-    def run(seed: int) -> None:
-        barrier.wait()
-        runs.append(_write_results(repo, job.id, seed))
-
-    threads = [threading.Thread(target=run, args=(s,)) for s in range(WRITERS)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
-    assert len(runs) == WRITERS
-    _check_concurrent_outcome(repo, job.id, runs)
-
-
-def test_concurrent_results_from_processes(repo: SqlRepository, db) -> None:
-    url, _engine = db
-    job = new_job(repo)
-    repo.put_pending_evaluations(job.id, 0, [[i / POP] for i in range(POP)])
-    ctx = mp.get_context("fork")
-    queue = ctx.Queue()
-    procs = [ctx.Process(target=_child, args=(url, job.id, s, queue)) for s in range(WRITERS)]
-    for p in procs:
-        p.start()
-    runs = [queue.get(timeout=60) for _ in procs]
-    for p in procs:
-        p.join(30)
-        assert p.exitcode == 0
-    _check_concurrent_outcome(repo, job.id, runs)
-
-
-def test_concurrent_attempts_are_each_counted(repo: SqlRepository) -> None:
-    job = new_job(repo)
-    repo.put_pending_evaluations(job.id, 0, [[0.5]])
-    barrier = threading.Barrier(4)
-
-    def run() -> None:
-        barrier.wait()
-        for _ in range(5):
-            repo.start_attempt(job.id, 0, 0)
-
-    threads = [threading.Thread(target=run) for _ in range(4)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
-    assert repo.get_evaluation(job.id, 0, 0).attempts == 20
 
 
 # ---- the workers' per-candidate calls: claim_evaluation + store_result --------------------
@@ -296,12 +139,12 @@ def test_claim_counts_an_attempt_and_reports_the_job(repo: SqlRepository) -> Non
     assert (claim.status, claim.attempts, claim.params) == ("pending", 1, [0.5, 0.25])
     assert claim.job_status == "running" and not claim.job_terminal
     assert repo.claim_evaluation(job.id, 0, 0).attempts == 2  # e.g. its worker died
-    assert repo.get_evaluation(job.id, 0, 0).attempts == 2
+    assert get_evaluation(repo, job.id, 0, 0).attempts == 2
     assert repo.store_result(job.id, 0, 0, objective=1.5, fell=False, cpu_seconds=0.25)
     # a re-delivered message for a finished candidate counts nothing and sees it done
     done = repo.claim_evaluation(job.id, 0, 0)
     assert (done.status, done.attempts) == ("done", 2)
-    assert repo.get_evaluation(job.id, 0, 0).attempts == 2
+    assert get_evaluation(repo, job.id, 0, 0).attempts == 2
 
     repo.set_job_status(job.id, "cancelled")
     late = repo.claim_evaluation(job.id, 0, 1)
@@ -321,7 +164,7 @@ def test_store_result_first_result_wins(repo: SqlRepository) -> None:
     assert repo.store_result(
         job.id, 0, 0, objective=1.25, fell=True, cpu_seconds=0.5, details={"worker": "w1"}
     )
-    first = repo.get_evaluation(job.id, 0, 0)
+    first = get_evaluation(repo, job.id, 0, 0)
     assert (first.status, first.objective, first.fell, first.cpu_seconds) == ("done", 1.25,
                                                                             True, 0.5)
     assert (first.attempts, first.params, first.details) == (1, [0.5, 0.5], {"worker": "w1"})
@@ -329,18 +172,18 @@ def test_store_result_first_result_wins(repo: SqlRepository) -> None:
     assert not repo.store_result(job.id, 0, 0, objective=9.0, fell=False, cpu_seconds=3.0)
     assert not repo.store_result(job.id, 0, 0, objective=None, fell=None, cpu_seconds=None,
                                  error="late failure")
-    assert repo.get_evaluation(job.id, 0, 0) == first
+    assert get_evaluation(repo, job.id, 0, 0) == first
     # an error makes it failed; a result never claimed still counts one attempt
     assert repo.store_result(job.id, 0, 1, objective=None, fell=None, cpu_seconds=None,
                              error="gave up")
-    failed = repo.get_evaluation(job.id, 0, 1)
+    failed = get_evaluation(repo, job.id, 0, 1)
     assert (failed.status, failed.objective, failed.error, failed.attempts) == (
         "failed", None, "gave up", 1)
     assert repo.evaluation_counts(job.id, 0) == GenerationCounts(pending=1, done=1, failed=1)
     # numpy numbers are plain data; nothing is stored for refused input
     assert repo.store_result(job.id, 0, 2, objective=np.float64(0.5), fell=np.bool_(False),
                              cpu_seconds=np.float32(0.125), details={"x": np.arange(2)})
-    assert repo.get_evaluation(job.id, 0, 2).details == {"x": [0, 1]}
+    assert get_evaluation(repo, job.id, 0, 2).details == {"x": [0, 1]}
     with pytest.raises(ValueError):
         repo.store_result(job.id, 0, 2, objective=float("nan"), fell=False, cpu_seconds=0)
     with pytest.raises(ValueError):
@@ -363,11 +206,13 @@ def test_claimed_attempts_are_bounded_by_the_caller(repo: SqlRepository) -> None
     claim = repo.claim_evaluation(job.id, 0, 1)
     assert claim.attempts > max_attempts
     out = repo.fail_evaluation(job.id, 0, 1, f"gave up after {max_attempts} attempts")
-    assert out.changed and out.counts == GenerationCounts(pending=1, failed=1)
+    assert out is True
+    assert repo.evaluation_counts(job.id, 0) == GenerationCounts(pending=1, failed=1)
+    assert repo.fail_evaluation(job.id, 0, 1, "again") is False
     again = repo.claim_evaluation(job.id, 0, 1)
     assert (again.status, again.attempts) == ("failed", claim.attempts)
     assert not repo.store_result(job.id, 0, 1, objective=1.0, fell=False, cpu_seconds=1.0)
-    assert repo.get_evaluation(job.id, 0, 1).status == "failed"
+    assert get_evaluation(repo, job.id, 0, 1).status == "failed"
     # the other candidate is unaffected
     assert repo.claim_evaluation(job.id, 0, 0).attempts == 1
     assert repo.store_result(job.id, 0, 0, objective=1.0, fell=False, cpu_seconds=1.0)
@@ -386,7 +231,7 @@ def test_evaluation_writes_leave_the_connection_settings_alone(db) -> None:
         repo.store_result(job.id, 0, 0, objective=1.0, fell=False, cpu_seconds=0.0)
         with pytest.raises(NotFound):
             repo.store_result(job.id, 0, 1, objective=1.0, fell=False, cpu_seconds=0.0)
-        assert repo.get_evaluation(job.id, 0, 0).status == "done"
+        assert get_evaluation(repo, job.id, 0, 0).status == "done"
         if engine.dialect.name == "postgresql":
             with engine.connect() as c:
                 assert c.exec_driver_sql("SHOW synchronous_commit").scalar() == "on"
@@ -430,10 +275,8 @@ def test_evaluation_writes_commit_asynchronously_on_postgresql(db) -> None:
                 repo.store_result(job.id, 0, i, objective=1.0, fell=False, cpu_seconds=0.0)
             asynchronous.append(wal_syncs() - before)
             before = wal_syncs()
-            for i in range(first + n, first + 2 * n):
-                repo.start_attempt(job.id, 0, i)
-                repo.record_evaluation(job.id, 0, i, objective=1.0, fell=False,
-                                       cpu_seconds=0.0)
+            for i in range(first + n, first + 2 * n):  # a synchronous write each
+                repo.put_pending_evaluations(job.id, 1000 + i, [[0.5]])
             synchronous.append(wal_syncs() - before)
     finally:
         engine.dispose()
@@ -508,4 +351,4 @@ def test_concurrent_claims_are_each_counted(repo: SqlRepository) -> None:
     for t in threads:
         t.join(60)
     assert sorted(seen) == list(range(1, 21))  # every claim saw its own increment
-    assert repo.get_evaluation(job.id, 0, 0).attempts == 20
+    assert get_evaluation(repo, job.id, 0, 0).attempts == 20

@@ -35,7 +35,6 @@ def test_unknown_job_is_not_found(repo: SqlRepository) -> None:
         lambda: repo.get_job("nope"),
         lambda: repo.set_job_status("nope", "running"),
         lambda: repo.request_cancel("nope"),
-        lambda: repo.get_optimizer_state("nope"),
         lambda: repo.acquire_driver_lease("nope", "a", 10),
     ):
         with pytest.raises(NotFound):

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from store_helpers import cmrt_families, list_bases
 
 from store.errors import Conflict, NotFound
+from store.records import CmrtEntry
 from store.repository import SqlRepository
 
 HUMANOID = {"model": "humanoid", "height": 1.75, "mass": 70.0}
@@ -19,18 +21,19 @@ def add(repo: SqlRepository, family: str = "push", objective: float = 1.0, **par
         values=[0.01, -0.02, 0.03, 0.0], curve={"t": [0.0, 0.5, 1.0], "x": [0.0, 0.01, 0.0]},
         objective=objective, objective_without=objective * 3, fell=False, fell_without=True,
     )  # fmt: skip
-    return repo.add_cmrt(**kw)
+    return repo.add_cmrt(CmrtEntry(**kw))
 
 
 def test_cmrt_round_trip(repo: SqlRepository) -> None:
     job = repo.create_job({"name": "p"}, name="p", family="push", task="push", seed=1)
-    cid = repo.add_cmrt(
+    cid = repo.add_cmrt(CmrtEntry(
         family="push", character=HUMANOID, task_parameters={"duration": 0.2, "force": -250.0},
         preparation=1.0, duration=0.2, decay=1.5, params=np.linspace(0, 1, 8),
         knots=[0.1, 0.4, 0.9, 1.3], values=[[0.01, 0.0], [0.02, -0.01], [0.0, 0.0], [0, 0]],
         curve={"t": [0.0, 0.1], "x": [0.0, 0.001]}, objective=2.5, objective_without=8.0,
         fell=False, fell_without=True, job_id=job.id, spec={"name": "p", "task": "push"},
-    )  # fmt: skip
+        winner="flat",
+    ))  # fmt: skip
     rec = repo.get_cmrt(cid)
     assert rec.id == cid and rec.family == "push" and rec.job_id == job.id
     assert rec.character == HUMANOID
@@ -42,17 +45,21 @@ def test_cmrt_round_trip(repo: SqlRepository) -> None:
         2.5, 8.0, False, True,
     )  # fmt: skip
     assert rec.spec == {"name": "p", "task": "push"} and rec.created_at.tzinfo is not None
+    assert rec.winner == "flat" and repo.job_cmrt(job.id) == rec
+    assert repo.job_cmrt("no-such-job") is None
     with pytest.raises(NotFound):
         repo.get_cmrt("nope")
 
 
 def test_cmrt_input_checks(repo: SqlRepository) -> None:
     with pytest.raises(Conflict):
-        repo.add_cmrt(**{**_minimal(), "job_id": "missing"})
+        repo.add_cmrt(CmrtEntry(**{**_minimal(), "job_id": "missing"}))
     with pytest.raises(ValueError):
-        repo.add_cmrt(**{**_minimal(), "task_parameters": {"force": float("nan")}})
+        repo.add_cmrt(CmrtEntry(**{**_minimal(), "task_parameters": {"force": float("nan")}}))
     with pytest.raises(ValueError):
-        repo.add_cmrt(**{**_minimal(), "task_parameters": {"": 1.0}})
+        repo.add_cmrt(CmrtEntry(**{**_minimal(), "task_parameters": {"": 1.0}}))
+    with pytest.raises(ValueError, match="winner"):
+        repo.add_cmrt(CmrtEntry(**{**_minimal(), "winner": "lucky"}))
     assert repo.list_cmrts() == ([], 0)
 
 
@@ -107,9 +114,9 @@ def test_find_ties_prefer_lower_objective_and_character_filter(repo: SqlReposito
     worse = add(repo, objective=5.0, duration=0.4)
     better = add(repo, objective=2.0, duration=0.4)
     tall_humanoid = {**HUMANOID, "height": 1.9}
-    tall = repo.add_cmrt(
+    tall = repo.add_cmrt(CmrtEntry(
         **{**_minimal(), "family": "push", "objective": 9.0, "character": tall_humanoid}
-    )
+    ))
     assert [r.id for r in repo.find_cmrts("push", {"duration": 0.4})] == [better, worse, tall]
     found = repo.find_cmrts("push", {"duration": 0.4}, character={"height": 1.9})
     assert [r.id for r in found] == [tall]
@@ -130,7 +137,7 @@ def test_list_cmrts_and_families(repo: SqlRepository) -> None:
     page, total = repo.list_cmrts("push", limit=2, offset=4)
     assert total == 5 and len(page) == 1
     assert repo.list_cmrts()[1] == 6
-    assert repo.cmrt_families() == {"bend": 1, "push": 5}
+    assert cmrt_families(repo) == {"bend": 1, "push": 5}
 
 
 # ---- bases -------------------------------------------------------------------------------
@@ -150,8 +157,8 @@ def test_basis_round_trip(repo: SqlRepository) -> None:
     second = repo.add_basis(
         family="push", k=1, mean=[0.0], components=[[1.0]], variance_explained=[1.0], members=[]
     )
-    assert [x.id for x in repo.list_bases("push")] == [second, bid]
-    assert repo.list_bases("bend") == []
+    assert [x.id for x in list_bases(repo, "push")] == [second, bid]
+    assert list_bases(repo, "bend") == []
     with pytest.raises(NotFound):
         repo.get_basis("nope")
 

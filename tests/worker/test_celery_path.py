@@ -1,5 +1,5 @@
 """The Celery side of the distributed path, without a broker: task and app settings required by
-design.md ("Jobs"), what the driver sends, and when it polls the store."""
+docs/service.md ("Architecture"), what the driver sends, and when it polls the store."""
 
 from __future__ import annotations
 
@@ -7,15 +7,15 @@ import pytest
 
 from cmrt.settings import Settings
 from worker.celery_app import TASK_EVALUATE, make_celery
-from worker.config import WorkerConfig
 from worker.executors import MIN_POLL_INTERVAL, CeleryExecutor, PollSchedule
 
 
 @pytest.fixture
 def config(tmp_path):
     settings = Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/t.db",
-                        broker_url="redis://127.0.0.1:1/0", eval_time_limit=60)
-    return WorkerConfig(settings, visibility_timeout=120)
+                        broker_url="redis://127.0.0.1:1/0", eval_time_limit=60,
+                        visibility_timeout=120)
+    return settings
 
 
 def test_evaluation_task_settings() -> None:

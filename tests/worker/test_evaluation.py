@@ -4,6 +4,7 @@ synthetic objective: claim, skip, fail after max_attempts, evaluate, store (firs
 from __future__ import annotations
 
 import pytest
+from store_helpers import get_evaluation
 
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
 from optim.synthetic import Sphere
@@ -63,12 +64,12 @@ def test_candidate_is_evaluated_once_and_its_result_stored(setup) -> None:
     out = run(repo, job_id, 0, 0, cache)
     assert out == {"status": "done", "objective": pytest.approx(0.08), "attempts": 1,
                    "changed": True}
-    ev = repo.get_evaluation(job_id, 0, 0)
+    ev = get_evaluation(repo, job_id, 0, 0)
     assert (ev.status, ev.attempts, ev.fell) == ("done", 1, False)
     assert ev.objective == pytest.approx(0.08) and ev.details == {"worker": "w1/42"}
     # a re-delivered message: skipped, nothing counted, the objective not called again
     assert run(repo, job_id, 0, 0, cache) == {"status": "done", "skipped": True}
-    assert repo.get_evaluation(job_id, 0, 0).attempts == 1 and len(objective.calls) == 1
+    assert get_evaluation(repo, job_id, 0, 0).attempts == 1 and len(objective.calls) == 1
     for i in (1, 2):
         assert run(repo, job_id, 0, i, cache)["status"] == "done"
     assert repo.evaluation_counts(job_id, 0).done == 3
@@ -80,7 +81,7 @@ def test_a_raising_objective_is_stored_as_done_with_the_worst_objective(setup) -
     repo, job_id, _objective, cache = setup
     repo.put_pending_evaluations(job_id, 0, [[0.95, 0.5]])
     assert run(repo, job_id, 0, 0, cache)["status"] == "done"
-    ev = repo.get_evaluation(job_id, 0, 0)
+    ev = get_evaluation(repo, job_id, 0, 0)
     assert ev.status == "done" and ev.objective == FAILED_OBJECTIVE
     assert "simulator blew up" in ev.details["error"]
 
@@ -90,7 +91,7 @@ def test_candidate_of_a_finished_job_is_not_evaluated(setup) -> None:
     repo.put_pending_evaluations(job_id, 0, [[0.5, 0.5]])
     repo.set_job_status(job_id, "cancelled")
     assert run(repo, job_id, 0, 0, cache) == {"status": "skipped", "job_status": "cancelled"}
-    assert objective.calls == [] and repo.get_evaluation(job_id, 0, 0).status == "pending"
+    assert objective.calls == [] and get_evaluation(repo, job_id, 0, 0).status == "pending"
 
 
 def test_candidate_killing_its_worker_fails_after_max_attempts(setup) -> None:
@@ -100,7 +101,7 @@ def test_candidate_killing_its_worker_fails_after_max_attempts(setup) -> None:
         repo.claim_evaluation(job_id, 0, 1)
     out = run(repo, job_id, 0, 1, cache, max_attempts=2)
     assert out == {"status": "failed", "attempts": 3}
-    ev = repo.get_evaluation(job_id, 0, 1)
+    ev = get_evaluation(repo, job_id, 0, 1)
     assert ev.status == "failed" and "started 2 times" in ev.error and objective.calls == []
     assert run(repo, job_id, 0, 1, cache, max_attempts=2)["skipped"]
     # its neighbour is evaluated normally
@@ -138,7 +139,7 @@ def test_store_calls_survive_a_lost_database_connection(repo) -> None:
             with repo.engine.connect() as c:
                 assert c.execute(text("SELECT pg_terminate_backend(:p)"), {"p": pid}).scalar()
         assert run(worker_repo, job.id, 0, 1, cache)["status"] == "done"
-        ev = repo.get_evaluation(job.id, 0, 1)
+        ev = get_evaluation(repo, job.id, 0, 1)
         assert (ev.status, ev.attempts) == ("done", 1)
     finally:
         engine.dispose()

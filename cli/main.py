@@ -1,4 +1,5 @@
-"""The `cmrt` command line: simulate, optimize, bench, pca, interpolate, serve, worker.
+"""The `cmrt` command line (console script `cmrt = cli.main:main`): simulate, optimize, bench,
+pca, interpolate, serve, worker.
 
 Domain errors become one clear message on stderr and exit status 2; nothing is written then.
 """
@@ -168,15 +169,67 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 # ---- serve / worker ---------------------------------------------------------------------------
 def cmd_serve(args: argparse.Namespace) -> int:
-    from service.cli import serve_main
+    """The HTTP API with its job drivers under uvicorn (embedded default without a broker)."""
+    import uvicorn
 
-    return serve_main(args.rest)
+    from cmrt.settings import get_settings
+    from service.app import create_app
+
+    settings = get_settings()
+    if args.workers is not None:
+        settings = settings.model_copy(update={"workers": args.workers})
+    try:
+        app = create_app(settings)
+    except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
+        return _die(f"serve: {err}")
+    uvicorn.run(app, host=args.host or settings.api_host, port=args.port or settings.api_port,
+                log_level=(args.log_level or settings.log_level).lower(),
+                timeout_graceful_shutdown=5)
+    return 0
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
-    from worker.cli import worker_main
+    """A Celery worker evaluating candidates (needs CMRT_BROKER_URL)."""
+    from cmrt.settings import get_settings
 
-    return worker_main(args.rest)
+    settings = get_settings()
+    if not settings.broker_url:
+        return _die("worker: no broker configured (set CMRT_BROKER_URL, e.g. "
+                    "redis://localhost:6379/0); without a broker `cmrt serve` evaluates in its "
+                    "own local process pool")
+    from worker.celery_app import app
+
+    if args.ping:
+        import socket
+
+        name = args.hostname or f"cmrt@{socket.gethostname()}"
+        replies = app.control.ping(destination=[name], timeout=5.0)
+        return 0 if replies else 1
+    cmd = ["worker", "-Q", settings.queue, "-l", (args.loglevel or settings.log_level).upper(),
+           "--without-gossip", "--without-mingle", "-P", "prefork"]
+    concurrency = args.concurrency or settings.worker_concurrency
+    if concurrency:
+        cmd += ["-c", str(concurrency)]
+    cmd += ["-n", args.hostname or "cmrt@%h"]
+    app.worker_main(cmd)
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
+    return n
+
+
+def _port(text: str) -> int:
+    n = _positive_int(text)
+    if n > 65535:
+        raise argparse.ArgumentTypeError(f"must be a port in 1..65535, got {n}")
+    return n
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -224,11 +277,27 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--json", action="store_true", help="print the sampled curve too")
     i.set_defaults(func=cmd_interpolate)
 
-    for name, fn, hlp in (("serve", cmd_serve, "run the HTTP API (embedded default)"),
-                          ("worker", cmd_worker, "run a Celery worker")):
-        x = sub.add_parser(name, help=hlp, add_help=False)
-        x.add_argument("rest", nargs=argparse.REMAINDER)
-        x.set_defaults(func=fn)
+    v = sub.add_parser("serve", help="run the HTTP API (embedded default: SQLite + local pool)",
+                       description="Serve the CMRT HTTP API and its job drivers. Without "
+                       "CMRT_BROKER_URL it runs the embedded default (SQLite file, evaluations "
+                       "in a local process pool), with no other server.")
+    v.add_argument("--host", help="bind address (default CMRT_API_HOST, 127.0.0.1)")
+    v.add_argument("--port", type=_port, help="port (default CMRT_API_PORT, 8000)")
+    v.add_argument("--workers", type=_positive_int,
+                   help="local pool processes in embedded mode (default CMRT_WORKERS)")
+    v.add_argument("--log-level", help="uvicorn log level (default CMRT_LOG_LEVEL, info)")
+    v.set_defaults(func=cmd_serve)
+
+    w = sub.add_parser("worker", help="run a Celery evaluation worker (needs CMRT_BROKER_URL)",
+                       description="Start a Celery worker evaluating CMRT candidates from the "
+                       "queue CMRT_QUEUE (needs CMRT_BROKER_URL).")
+    w.add_argument("--concurrency", "-c", type=_positive_int,
+                   help="worker processes (default CMRT_WORKER_CONCURRENCY, else the CPUs)")
+    w.add_argument("--loglevel", "-l", help="log level (default CMRT_LOG_LEVEL, INFO)")
+    w.add_argument("--hostname", "-n", help="node name (default cmrt@<host>)")
+    w.add_argument("--ping", action="store_true",
+                   help="health check: exit 0 if a worker on this host answers a ping")
+    w.set_defaults(func=cmd_worker)
     return p
 
 

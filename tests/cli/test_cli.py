@@ -12,7 +12,7 @@ import time
 import pytest
 import yaml
 
-from cmrt.cli import main
+from cli.main import main
 
 #: A short bend: cheap enough to optimise for two generations in a test.
 BEND = {
@@ -90,7 +90,7 @@ def test_missing_result_file(optimised, capsys):
 
 
 def _optimize_cmd(spec, out, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "cmrt.cli", "optimize", str(spec), "--workers", "2",
+    return [sys.executable, "-m", "cli.main", "optimize", str(spec), "--workers", "2",
             "--seed", "5", "--out", str(out), "--json", *extra]
 
 
@@ -162,12 +162,12 @@ def test_sigterm_stops_optimize_cleanly_and_leaves_no_workers(tmp_path):
 
 
 def test_interrupt_of_a_command_without_checkpoint_does_not_promise_one(monkeypatch, capsys):
-    import cmrt.cli
+    import cli.main
 
     def interrupted(_args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(cmrt.cli, "cmd_simulate", interrupted)
+    monkeypatch.setattr(cli.main, "cmd_simulate", interrupted)
     assert main(["simulate", "examples/fast_bend.yaml"]) == 130
     err = capsys.readouterr().err
     assert "interrupted" in err and "checkpoint" not in err

@@ -1,0 +1,270 @@
+"""Jobs and their driver lease: `JobRepository` (the contract) and `SqlJobs` (SQLAlchemy)."""
+
+from __future__ import annotations
+
+import abc
+import uuid
+from collections.abc import Iterable, Mapping
+from datetime import timedelta
+from typing import Any
+
+from sqlalchemy import func, or_, select, update
+
+from store.errors import Conflict, InvalidTransition, NotFound
+from store.models import Basis, Job
+from store.records import (
+    CANCELLED,
+    JOB_STATUSES,
+    QUEUED,
+    RUNNING,
+    TERMINAL_STATUSES,
+    TRANSITIONS,
+    JobRecord,
+)
+from store.sql import (
+    SqlBase,
+    _job_record,
+    _json,
+)
+
+
+class JobRepository(abc.ABC):
+    """Jobs (status machine of `store.records.TRANSITIONS`, cancellation) and the driver lease
+    that admits one driver per job."""
+
+    # ---- jobs ---------------------------------------------------------------------------
+    @abc.abstractmethod
+    def create_job(
+        self,
+        spec: Mapping[str, Any],
+        *,
+        name: str,
+        family: str,
+        task: str,
+        seed: int | None = None,
+        workers: int = 1,
+        basis_id: str | None = None,
+    ) -> JobRecord:
+        """Store a new job in status `queued` and return it (a fresh uuid4 string id).
+
+        `spec` is the JSON form of the TaskSpec (`spec.model_dump(mode="json")`).
+        Raises Conflict if `basis_id` names no stored basis.
+        """
+
+    @abc.abstractmethod
+    def get_job(self, job_id: str) -> JobRecord:
+        """The job; raises NotFound."""
+
+    @abc.abstractmethod
+    def list_jobs(
+        self,
+        *,
+        status: str | Iterable[str] | None = None,
+        family: str | None = None,
+        limit: int = 50,
+        offset: int = 0,
+    ) -> tuple[list[JobRecord], int]:
+        """One page of jobs, newest first, and the total number matching the filters."""
+
+    @abc.abstractmethod
+    def set_job_status(
+        self,
+        job_id: str,
+        status: str,
+        *,
+        stop_rule: str | None = None,
+        error: str | None = None,
+    ) -> JobRecord:
+        """Move the job to `status` along `store.records.TRANSITIONS`; return the new record.
+
+        Sets `started_at` on entering `running` and `finished_at` on entering a terminal
+        state (which also releases the driver lease); `stop_rule` and `error` are stored when
+        given. Setting the status the job already has is a no-op returning the record.
+        Atomic compare-and-set: of two racing changes from the same state only one wins, the
+        other raises InvalidTransition. Raises NotFound, InvalidTransition, ValueError for an
+        unknown status.
+        """
+
+    @abc.abstractmethod
+    def request_cancel(self, job_id: str) -> JobRecord:
+        """Ask for cancellation: a queued job is cancelled at once; a running job gets
+        `cancel_requested` set and its driver cancels it between generations; a finished job is
+        left unchanged. Returns the record. Raises NotFound."""
+
+    # ---- driver lease -------------------------------------------------------------------
+    @abc.abstractmethod
+    def acquire_driver_lease(self, job_id: str, owner: str, ttl_s: float) -> bool:
+        """Become the job's one driver for `ttl_s` seconds; True on success.
+
+        Succeeds if nobody holds the lease, `owner` already holds it (then it is renewed), or
+        the holder's lease has expired (takeover of a dead driver). Fails for a finished job.
+        Atomic: of concurrent callers at most one succeeds. Raises NotFound.
+        """
+
+    @abc.abstractmethod
+    def renew_driver_lease(self, job_id: str, owner: str, ttl_s: float) -> bool:
+        """Extend `owner`'s lease (and heartbeat); False if another owner took it over."""
+
+    @abc.abstractmethod
+    def release_driver_lease(self, job_id: str, owner: str) -> None:
+        """Give up the lease if `owner` holds it; otherwise do nothing."""
+
+    @abc.abstractmethod
+    def orphaned_jobs(self, limit: int = 100) -> list[JobRecord]:
+        """Queued or running jobs without a live lease (never driven, or driver dead),
+        oldest first: what a (re)started driver should pick up."""
+
+
+class SqlJobs(SqlBase, JobRepository):
+    # ---- jobs ---------------------------------------------------------------------------
+    def create_job(self, spec, *, name, family, task, seed=None, workers=1, basis_id=None):
+        if workers < 1:
+            raise ValueError("workers must be >= 1")
+        with self._write() as s:
+            if basis_id is not None and s.get(Basis, basis_id) is None:
+                raise Conflict(f"basis {basis_id} not found")
+            job = Job(
+                id=str(uuid.uuid4()), name=name, family=family, task=task,
+                spec=_json(dict(spec), "spec"), seed=seed, workers=int(workers), status=QUEUED,
+                basis_id=basis_id, created_at=self._clock(), evaluations=0, iterations=0,
+                cancel_requested=False,
+            )  # fmt: skip
+            s.add(job)
+            s.flush()
+            return _job_record(job)
+
+    def get_job(self, job_id):
+        with self._read() as s:
+            job = s.get(Job, job_id)
+            if job is None:
+                raise NotFound(f"job {job_id} not found")
+            return _job_record(job)
+
+    def list_jobs(self, *, status=None, family=None, limit=50, offset=0):
+        conds = []
+        if status is not None:
+            statuses = [status] if isinstance(status, str) else list(status)
+            conds.append(Job.status.in_(statuses))
+        if family is not None:
+            conds.append(Job.family == family)
+        with self._read() as s:
+            total = s.scalar(select(func.count()).select_from(Job).where(*conds)) or 0
+            rows = s.scalars(
+                select(Job)
+                .where(*conds)
+                .order_by(Job.created_at.desc(), Job.id)
+                .limit(limit)
+                .offset(offset)
+            ).all()
+            return [_job_record(j) for j in rows], int(total)
+
+    def set_job_status(self, job_id, status, *, stop_rule=None, error=None):
+        if status not in JOB_STATUSES:
+            raise ValueError(f"unknown job status {status!r}; statuses are {JOB_STATUSES}")
+        sources = [src for src, dests in TRANSITIONS.items() if status in dests]
+        now = self._clock()
+        values: dict[str, Any] = {"status": status}
+        if stop_rule is not None:
+            values["stop_rule"] = stop_rule
+        if error is not None:
+            values["error"] = error
+        if status == RUNNING:
+            values["started_at"] = now
+        if status in TERMINAL_STATUSES:
+            values.update(finished_at=now, driver_owner=None, lease_expires_at=None)
+        with self._write() as s:
+            res = s.execute(
+                update(Job)
+                .where(Job.id == job_id, Job.status.in_(sources))
+                .values(**values)
+                .execution_options(synchronize_session=False)
+            )
+            if res.rowcount == 0:
+                current = s.scalar(select(Job.status).where(Job.id == job_id))
+                if current is None:
+                    raise NotFound(f"job {job_id} not found")
+                if current != status:
+                    raise InvalidTransition(job_id, current, status)
+            return _job_record(s.get(Job, job_id, populate_existing=True))
+
+    def request_cancel(self, job_id):
+        now = self._clock()
+        with self._write() as s:
+            job = self._lock_job(s, job_id)
+            if job.status == QUEUED:
+                job.status = CANCELLED
+                job.cancel_requested = True
+                job.finished_at = now
+                job.driver_owner = None
+                job.lease_expires_at = None
+            elif job.status == RUNNING:
+                job.cancel_requested = True
+            s.flush()
+            return _job_record(job)
+
+    # ---- driver lease -------------------------------------------------------------------
+    def acquire_driver_lease(self, job_id, owner, ttl_s):
+        now = self._clock()
+        with self._write() as s:
+            res = s.execute(
+                update(Job)
+                .where(
+                    Job.id == job_id,
+                    Job.status.in_([QUEUED, RUNNING]),
+                    or_(
+                        Job.driver_owner.is_(None),
+                        Job.driver_owner == owner,
+                        Job.lease_expires_at.is_(None),
+                        Job.lease_expires_at < now,
+                    ),
+                )
+                .values(
+                    driver_owner=owner,
+                    lease_expires_at=now + timedelta(seconds=ttl_s),
+                    heartbeat_at=now,
+                )
+                .execution_options(synchronize_session=False)
+            )
+            if res.rowcount == 0:
+                self._require_job(s, job_id)
+                return False
+            return True
+
+    def renew_driver_lease(self, job_id, owner, ttl_s):
+        now = self._clock()
+        with self._write() as s:
+            res = s.execute(
+                update(Job)
+                .where(Job.id == job_id, Job.driver_owner == owner)
+                .values(lease_expires_at=now + timedelta(seconds=ttl_s), heartbeat_at=now)
+                .execution_options(synchronize_session=False)
+            )
+            return res.rowcount == 1
+
+    def release_driver_lease(self, job_id, owner):
+        with self._write() as s:
+            s.execute(
+                update(Job)
+                .where(Job.id == job_id, Job.driver_owner == owner)
+                .values(driver_owner=None, lease_expires_at=None)
+                .execution_options(synchronize_session=False)
+            )
+
+    def orphaned_jobs(self, limit=100):
+        now = self._clock()
+        with self._read() as s:
+            rows = s.scalars(
+                select(Job)
+                .where(
+                    Job.status.in_([QUEUED, RUNNING]),
+                    or_(
+                        Job.driver_owner.is_(None),
+                        Job.lease_expires_at.is_(None),
+                        Job.lease_expires_at < now,
+                    ),
+                )
+                .order_by(Job.created_at, Job.id)
+                .limit(limit)
+            ).all()
+            return [_job_record(j) for j in rows]
+

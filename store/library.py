@@ -1,0 +1,228 @@
+"""The CMRT library and PCA bases: `LibraryRepository` (the contract) and `SqlLibrary`."""
+
+from __future__ import annotations
+
+import abc
+import math
+import uuid
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from sqlalchemy import func, select
+
+from store.errors import Conflict, NotFound
+from store.models import Basis, Cmrt, CmrtParameter, Job
+from store.records import CMRT_ENTRY_FIELDS, WINNERS, BasisRecord, CmrtEntry, CmrtRecord
+from store.sql import (
+    SqlBase,
+    _basis_record,
+    _cmrt_record,
+    _exact_eps,
+    _json,
+    _num,
+    _opt_num,
+)
+
+
+class LibraryRepository(abc.ABC):
+    """Library CMRTs (one `CmrtEntry` each, task parameters queryable by name) and PCA bases."""
+
+    # ---- CMRT library -------------------------------------------------------------------
+    @abc.abstractmethod
+    def add_cmrt(self, entry: CmrtEntry) -> str:
+        """Add a library CMRT and return its id. Every task parameter becomes queryable by
+        name (`find_cmrts`). Raises Conflict if `entry.job_id` names no job; ValueError for
+        non-finite task parameters, clip times or objective, or an unknown `winner`."""
+
+    @abc.abstractmethod
+    def job_cmrt(self, job_id: str) -> CmrtRecord | None:
+        """The library CMRT a job added (`entry.job_id == job_id`), None if it added none.
+        One indexed lookup (cmrts.job_id); a job adds at most one entry."""
+
+    @abc.abstractmethod
+    def get_cmrt(self, cmrt_id: str) -> CmrtRecord:
+        """The CMRT; raises NotFound."""
+
+    @abc.abstractmethod
+    def find_cmrts(
+        self,
+        family: str,
+        params: Mapping[str, float],
+        *,
+        tolerance: float | Mapping[str, float] | None = None,
+        character: Mapping[str, Any] | None = None,
+        limit: int | None = None,
+    ) -> list[CmrtRecord]:
+        """Library CMRTs of `family` matching the task parameters `params`.
+
+        Without `tolerance`: every named parameter equal (to 1e-9 relative). With a tolerance
+        (one number, or one per name; names not in the mapping must match exactly): every
+        named parameter within +-tolerance, ordered nearest first by the Euclidean distance
+        over the named parameters, each difference divided by its tolerance (ties: lower
+        objective first). Only CMRTs having all named parameters match. `character` keeps
+        entries whose character has the given items (e.g. {"height": 1.75}).
+        """
+
+    @abc.abstractmethod
+    def list_cmrts(
+        self, family: str | None = None, *, limit: int | None = None, offset: int = 0
+    ) -> tuple[list[CmrtRecord], int]:
+        """Library CMRTs (of one family if given), newest first, and the total count."""
+
+    # ---- PCA bases ----------------------------------------------------------------------
+    @abc.abstractmethod
+    def add_basis(
+        self,
+        *,
+        family: str,
+        k: int,
+        mean: Sequence[float],
+        components: Sequence[Sequence[float]],
+        variance_explained: Sequence[float],
+        members: Sequence[str],
+        box: Any = None,
+    ) -> str:
+        """Store a PCA basis and return its id. ValueError if `components` has not `k` rows
+        of the length of `mean`."""
+
+    @abc.abstractmethod
+    def get_basis(self, basis_id: str) -> BasisRecord:
+        """The basis; raises NotFound."""
+
+
+class SqlLibrary(SqlBase, LibraryRepository):
+    # ---- CMRT library -------------------------------------------------------------------
+    def add_cmrt(self, entry):
+        e = entry
+        tp = {}
+        for k, v in e.task_parameters.items():
+            if not isinstance(k, str) or not 0 < len(k) <= 64:
+                raise ValueError(f"task parameter name {k!r}: 1..64 characters")
+            tp[k] = _num(v, f"task parameter {k!r}", allow_inf=False)
+        if e.winner not in WINNERS:
+            raise ValueError(f"winner: {e.winner!r} is not one of {', '.join(WINNERS)}")
+        values = {name: getattr(e, name) for name in CMRT_ENTRY_FIELDS}
+        values.update(
+            character=_json(dict(e.character), "character"), task_parameters=tp,
+            preparation=_num(e.preparation, "preparation", allow_inf=False),
+            duration=_num(e.duration, "duration", allow_inf=False),
+            decay=_num(e.decay, "decay", allow_inf=False), params=_json(e.params, "params"),
+            knots=_json(e.knots, "knots"), values=_json(e.values, "values"),
+            curve=_json(e.curve, "curve"), objective=_num(e.objective, "objective"),
+            objective_without=_opt_num(e.objective_without, "objective_without"),
+            fell=bool(e.fell),
+            fell_without=None if e.fell_without is None else bool(e.fell_without),
+            spec=_json(None if e.spec is None else dict(e.spec), "spec"),
+        )  # fmt: skip
+        row = Cmrt(id=str(uuid.uuid4()), created_at=self._clock(), **values)
+        with self._write() as s:
+            if e.job_id is not None and s.get(Job, e.job_id) is None:
+                raise Conflict(f"job {e.job_id} not found")
+            s.add(row)
+            s.flush()
+            s.add_all(CmrtParameter(cmrt_id=row.id, name=k, value=v) for k, v in tp.items())
+            return row.id
+
+    def job_cmrt(self, job_id):
+        with self._read() as s:
+            row = s.scalars(
+                select(Cmrt).where(Cmrt.job_id == job_id).order_by(Cmrt.created_at).limit(1)
+            ).one_or_none()
+            return None if row is None else _cmrt_record(row)
+
+    def get_cmrt(self, cmrt_id):
+        with self._read() as s:
+            row = s.get(Cmrt, cmrt_id)
+            if row is None:
+                raise NotFound(f"CMRT {cmrt_id} not found")
+            return _cmrt_record(row)
+
+    def find_cmrts(self, family, params, *, tolerance=None, character=None, limit=None):
+        target = {k: _num(v, f"parameter {k!r}", allow_inf=False) for k, v in params.items()}
+        tol: dict[str, float | None] = {}
+        for name in target:
+            t = tolerance.get(name) if isinstance(tolerance, Mapping) else tolerance
+            if t is not None and (not math.isfinite(t) or t < 0):
+                raise ValueError(f"tolerance for {name!r} must be finite and >= 0")
+            tol[name] = t
+        q = select(Cmrt).where(Cmrt.family == family)
+        for name, v in target.items():
+            half = tol[name] if tol[name] is not None else _exact_eps(v)
+            q = q.where(
+                Cmrt.id.in_(
+                    select(CmrtParameter.cmrt_id).where(
+                        CmrtParameter.name == name,
+                        CmrtParameter.value.between(v - half, v + half),
+                    )
+                )
+            )
+        with self._read() as s:
+            rows = s.scalars(q).all()
+            recs = [_cmrt_record(r) for r in rows]
+            stored: dict[str, dict[str, float]] = {r.id: {} for r in recs}
+            if recs and target:
+                for cid, name, value in s.execute(
+                    select(CmrtParameter.cmrt_id, CmrtParameter.name, CmrtParameter.value).where(
+                        CmrtParameter.cmrt_id.in_(list(stored)),
+                        CmrtParameter.name.in_(list(target)),
+                    )
+                ):
+                    stored[cid][name] = value
+        if character:
+            recs = [r for r in recs if _character_matches(r.character, character)]
+
+        def distance(r: CmrtRecord) -> float:
+            total = 0.0
+            for name, v in target.items():
+                d = stored[r.id][name] - v
+                t = tol[name]
+                total += (d / t) ** 2 if t else (0.0 if abs(d) <= _exact_eps(v) else math.inf)
+            return math.sqrt(total)
+
+        recs.sort(key=lambda r: (distance(r), r.objective, r.created_at, r.id))
+        return recs if limit is None else recs[:limit]
+
+    def list_cmrts(self, family=None, *, limit=None, offset=0):
+        conds = [] if family is None else [Cmrt.family == family]
+        with self._read() as s:
+            total = s.scalar(select(func.count()).select_from(Cmrt).where(*conds)) or 0
+            q = select(Cmrt).where(*conds).order_by(Cmrt.created_at.desc(), Cmrt.id)
+            rows = s.scalars(q.limit(limit).offset(offset)).all()
+            return [_cmrt_record(r) for r in rows], int(total)
+
+    # ---- PCA bases ----------------------------------------------------------------------
+    def add_basis(self, *, family, k, mean, components, variance_explained, members, box=None):
+        m = _json(mean, "mean")
+        comps = _json(components, "components")
+        if k < 1 or len(comps) != k or any(len(row) != len(m) for row in comps):
+            raise ValueError(f"components must be {k} rows of length {len(m)}")
+        row = Basis(
+            id=str(uuid.uuid4()), family=family, k=int(k), mean=m, components=comps,
+            variance_explained=_json(variance_explained, "variance_explained"),
+            members=[str(x) for x in members], box=_json(box, "box"), created_at=self._clock(),
+        )  # fmt: skip
+        with self._write() as s:
+            s.add(row)
+            return row.id
+
+    def get_basis(self, basis_id):
+        with self._read() as s:
+            row = s.get(Basis, basis_id)
+            if row is None:
+                raise NotFound(f"basis {basis_id} not found")
+            return _basis_record(row)
+
+
+
+def _character_matches(stored: Mapping[str, Any], wanted: Mapping[str, Any]) -> bool:
+    for key, want in wanted.items():
+        have = stored.get(key)
+        if isinstance(want, (int, float)) and isinstance(have, (int, float)):
+            if abs(float(have) - float(want)) > _exact_eps(float(want)):
+                return False
+        elif have != want:
+            return False
+    return True
+
+
+

@@ -1,0 +1,157 @@
+"""The SQL side shared by the repository's parts: `SqlBase` (engine, clock, transactions, row
+locks), value checks for what is stored, and ORM row -> record conversions (each record's field
+list is the record class's: `store.records`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import fields
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import Connection, Engine, select
+from sqlalchemy.orm import Session
+
+from store.db import session_scope
+from store.errors import NotFound
+from store.models import Basis, Cmrt, Evaluation, Generation, Job
+from store.records import (
+    BasisRecord,
+    CmrtRecord,
+    EvaluationRecord,
+    GenerationRecord,
+    JobRecord,
+)
+
+Clock = Callable[[], datetime]
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+def _json(value: Any, what: str) -> Any:
+    """Plain JSON data: numpy arrays/scalars become lists/floats; non-finite floats refused."""
+    if value is None or isinstance(value, (str, bool, int)):
+        return value
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"{what}: non-finite number {value!r} cannot be stored as JSON")
+        return value
+    if hasattr(value, "tolist"):  # numpy array or scalar, without importing numpy
+        return _json(value.tolist(), what)
+    if isinstance(value, Mapping):
+        return {str(k): _json(v, what) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json(v, what) for v in value]
+    raise ValueError(f"{what}: {type(value).__name__} is not JSON data")
+
+
+def _num(value: Any, what: str, *, allow_inf: bool = True) -> float:
+    x = float(value)
+    if math.isnan(x) or (not allow_inf and math.isinf(x)):
+        raise ValueError(f"{what}: {x!r} cannot be stored")
+    return x
+
+
+def _opt_num(value: Any, what: str) -> float | None:
+    return None if value is None else _num(value, what)
+
+
+def _job_record(j: Job) -> JobRecord:
+    return JobRecord(
+        id=j.id, name=j.name, family=j.family, task=j.task, spec=j.spec, seed=j.seed,
+        workers=j.workers, status=j.status, stop_rule=j.stop_rule, error=j.error,
+        basis_id=j.basis_id, created_at=j.created_at, started_at=j.started_at,
+        finished_at=j.finished_at, best_objective=j.best_objective, best_params=j.best_params,
+        evaluations=j.evaluations, iterations=j.iterations,
+        cancel_requested=bool(j.cancel_requested), driver_owner=j.driver_owner,
+        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at,
+    )  # fmt: skip
+
+
+def _generation_record(g: Generation, with_state: bool) -> GenerationRecord:
+    return GenerationRecord(
+        job_id=g.job_id, iteration=g.iteration, best=g.best, median=g.median, worst=g.worst,
+        sigma=g.sigma, best_so_far=g.best_so_far, evaluations=g.evaluations,
+        wall_time=g.wall_time, candidates=g.candidates,
+        optimizer_state=g.optimizer_state if with_state else None, created_at=g.created_at,
+    )  # fmt: skip
+
+
+def _evaluation_record(e: Evaluation) -> EvaluationRecord:
+    return EvaluationRecord(
+        job_id=e.job_id, generation=e.generation, index=e.index, params=e.params,
+        status=e.status, objective=e.objective, fell=e.fell, attempts=e.attempts,
+        cpu_seconds=e.cpu_seconds, error=e.error, details=e.details,
+        created_at=e.created_at, updated_at=e.updated_at,
+    )  # fmt: skip
+
+
+_CMRT_RECORD_FIELDS = tuple(f.name for f in fields(CmrtRecord))
+
+
+def _cmrt_record(c: Cmrt) -> CmrtRecord:
+    return CmrtRecord(**{name: getattr(c, name) for name in _CMRT_RECORD_FIELDS})
+
+
+def _basis_record(b: Basis) -> BasisRecord:
+    return BasisRecord(
+        id=b.id, family=b.family, k=b.k, mean=b.mean, components=b.components,
+        variance_explained=b.variance_explained, members=b.members, box=b.box,
+        created_at=b.created_at,
+    )  # fmt: skip
+
+
+def _exact_eps(v: float) -> float:
+    return 1e-9 * max(1.0, abs(v))
+
+
+# ---- the workers' per-candidate statements, built once (see SqlRepository) ---------------
+
+class SqlBase:
+    """Engine, clock and transactions of `SqlRepository` (see its docstring). `clock` returns
+    the current aware UTC time (tests inject one to expire leases)."""
+
+    def __init__(self, engine: Engine, *, clock: Clock = utcnow) -> None:
+        self.engine = engine
+        self._clock = clock
+        self._postgres = engine.dialect.name == "postgresql"
+
+    # ---- helpers ------------------------------------------------------------------------
+    def _write(self) -> Any:
+        return session_scope(self.engine)
+
+    @contextmanager
+    def _evaluation_write(self) -> Iterator[Connection]:
+        """A Core connection for the per-candidate statements: PostgreSQL in autocommit mode
+        (each statement is its own transaction; the writes commit asynchronously by
+        `_ASYNC_COMMIT`), SQLite in one write transaction (BEGIN IMMEDIATE)."""
+        if self._postgres:
+            with self.engine.connect() as conn:
+                yield conn.execution_options(isolation_level="AUTOCOMMIT")
+        else:
+            with self.engine.begin() as conn:
+                yield conn
+
+    def _read(self) -> Any:
+        return session_scope(self.engine, read_only=True)
+
+    @staticmethod
+    def _lock_job(s: Session, job_id: str) -> Job:
+        """Load and lock the job row (PostgreSQL: FOR NO KEY UPDATE; SQLite: the write
+        transaction already excludes other writers)."""
+        job = s.scalars(
+            select(Job).where(Job.id == job_id).with_for_update(key_share=True)
+        ).one_or_none()
+        if job is None:
+            raise NotFound(f"job {job_id} not found")
+        return job
+
+    @staticmethod
+    def _require_job(s: Session, job_id: str) -> None:
+        if s.scalar(select(Job.id).where(Job.id == job_id)) is None:
+            raise NotFound(f"job {job_id} not found")
+

@@ -1,0 +1,390 @@
+"""Every command the README shows, run as written (the project rule), in a scratch folder.
+
+`test_every_readme_command_is_covered` reads the README's ```sh blocks and fails on a command
+no test here runs, so a command added to the README without a test fails the suite. How each
+one runs (and the few substitutions, each said where it is made):
+  * long runs get tiny budgets, not other arguments: the scratch folder's
+    `examples/fast_bend.yaml` is the real one with `optimize` cut to one generation, so
+    `make run`'s and the README's `cmrt optimize examples/fast_bend.yaml ...` lines run
+    verbatim; bench/ scripts (30-80 min) run with `--help`;
+  * optional parts `[...]` run in every form shown (each option once);
+  * `make run` / `make test` are checked with `make -n` (dry run; `make test` is what runs
+    this file, and the optimise command of `make run` runs verbatim below);
+  * the servers run on a free port (`CMRT_API_PORT` / `--port`: 8000 may be taken on a shared
+    machine) against the test PostgreSQL and Redis instead of the README's example URLs;
+  * `docker compose` lines run only where a Docker daemon answers (skipped with the reason);
+  * `open URL` (macOS) runs as `curl -s URL`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import httpx
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
+VENV_BIN = ROOT / ".venv" / "bin"
+PG_URL = os.environ.get(
+    "CMRT_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+)
+REDIS = os.environ.get("CMRT_TEST_REDIS", "redis://127.0.0.1:6379")
+#: One generation of the smallest population: what "a tiny budget" means here.
+TINY = {"popsize": 4, "max_evaluations": 4, "min_evaluations": 0}
+
+
+def readme_commands() -> list[str]:
+    """The commands of the README's ```sh blocks: continuation lines and open quotes joined,
+    comment-only and output lines (`# ...`) left out."""
+    out = []
+    for block in re.findall(r"```sh\n(.*?)```", README.read_text(), re.S):
+        cur = ""
+        for line in block.splitlines():
+            cur = f"{cur}\n{line}" if cur else line
+            if cur.endswith("\\"):
+                continue
+            try:
+                shlex.split(cur, comments=True)
+            except ValueError:  # an open quote: the command goes on
+                continue
+            if cur.strip() and not cur.lstrip().startswith("#"):
+                out.append(cur.strip())
+            cur = ""
+    return out
+
+
+def _strip_comment(cmd: str) -> str:
+    return re.sub(r"\s+#.*$", "", cmd.split("\n")[0]) if "\n" not in cmd else cmd
+
+
+def _expand_optional(cmd: str) -> list[str]:
+    """`a [--x | --y V] [--z]` -> ["a", "a --x", "a --y V", "a --z"] (each option once)."""
+    base = re.sub(r"\s*\[.*$", "", cmd)
+    forms = [base]
+    for group in re.findall(r"\[([^\[\]]*(?:\[[^\]]*\][^\[\]]*)*)\]", cmd):
+        for alt in group.split(" | "):
+            option = re.sub(r"[\[\]]", "", alt).strip()
+            forms.append(f"{base} {option}")
+    return forms
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory):
+    """A folder laid out like the repository root: .venv and bench/ link to the real ones,
+    examples/ are copies (fast_bend with a tiny budget), results/ holds four bend results."""
+    d = tmp_path_factory.mktemp("readme")
+    (d / ".venv").symlink_to(ROOT / ".venv")
+    (d / "bench").symlink_to(ROOT / "bench")
+    shutil.copytree(ROOT / "examples", d / "examples")
+    shutil.copy(ROOT / "Makefile", d / "Makefile")
+    shutil.copytree(ROOT / "scripts", d / "scripts")
+    fast = yaml.safe_load((d / "examples" / "fast_bend.yaml").read_text())
+    fast["optimize"] = {**fast.get("optimize", {}), **TINY}
+    (d / "examples" / "fast_bend.yaml").write_text(yaml.safe_dump(fast))
+    from cli.main import main
+
+    for dur in (0.3, 0.5, 0.7, 0.9):
+        spec = {**fast, "name": f"bend_{dur}", "clip": {"preparation": 0.3, "duration": dur,
+                                                       "decay": 0.3}}
+        path = d / f"bend_{dur}.yaml"
+        path.write_text(yaml.safe_dump(spec))
+        assert main(["optimize", str(path), "--workers", "1", "--seed", "1",
+                     "--out", str(d / "results" / f"bend_{dur}.json")]) == 0
+    return d
+
+
+def _env(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
+    env["PATH"] = f"{VENV_BIN}{os.pathsep}{env.get('PATH', '')}"
+    env.update(extra)
+    return env
+
+
+def _run(cmd: str, cwd: Path, env: dict[str, str] | None = None, timeout: float = 300.0):
+    p = subprocess.run(["bash", "-c", cmd], cwd=cwd, env=env or _env(), capture_output=True,
+                       text=True, timeout=timeout)
+    assert p.returncode == 0, f"{cmd!r} exited {p.returncode}:\n{p.stdout[-2000:]}\n" \
+                              f"{p.stderr[-3000:]}"
+    return p
+
+
+# ---- which test runs which README command -----------------------------------------------
+COVERED = {
+    "make run": "test_make_targets_resolve",
+    "make test": "test_make_targets_resolve",
+    ".venv/bin/cmrt simulate": "test_cli_block",
+    ".venv/bin/cmrt optimize": "test_cli_block",
+    ".venv/bin/cmrt pca": "test_cli_block",
+    ".venv/bin/cmrt interpolate": "test_cli_block",
+    ".venv/bin/cmrt bench": "test_cli_block",
+    ".venv/bin/cmrt serve": "test_cmrt_serve_embedded",
+    ".venv/bin/cmrt worker": "test_cmrt_worker",
+    ".venv/bin/python bench/": "test_bench_scripts_help",
+    "cp .env.example .env": "test_docker_block",
+    "docker compose": "test_docker_block",
+    "export CMRT_": "test_servers_and_every_curl",
+    "cmrt serve --host": "test_servers_and_every_curl",
+    "cmrt worker --concurrency": "test_servers_and_every_curl",
+    "curl ": "test_servers_and_every_curl",
+    "python -c ": "test_servers_and_every_curl",
+    "open $API": "test_servers_and_every_curl",
+}
+
+
+def test_every_readme_command_is_covered():
+    cmds = readme_commands()
+    assert len(cmds) > 40, "the README parser lost its commands"
+    missing = [c for c in cmds if not any(c.startswith(p) for p in COVERED)]
+    assert not missing, f"README commands no test runs: {missing}"
+
+
+def test_make_targets_resolve(scratch):
+    for line in readme_commands():
+        if line.startswith("make "):
+            target = _strip_comment(line).split()[1]
+            p = _run(f"make -n {target}", scratch)
+            assert target == "test" or "cmrt optimize" in p.stdout
+
+
+def test_cli_block(scratch):
+    d = scratch
+    shutil.copy(d / "results" / "bend_0.5.json", d / "RESULT.json")
+    lines = [_strip_comment(c) for c in readme_commands() if c.startswith(".venv/bin/cmrt ")]
+    order = ("optimize", "pca", "interpolate", "simulate", "bench")  # outputs feed later ones
+    lines = sorted((c for c in lines if c.split()[1] in order),
+                   key=lambda c: order.index(c.split()[1]))
+    ran = []
+    for line in lines:
+        for form in _expand_optional(line):
+            if "--basis BASIS.json" in form and not (d / "BASIS.json").exists():
+                _run(".venv/bin/cmrt pca results/bend_*.json --k 3 --out BASIS.json", d)
+            if "--warm-start R.json" in form:
+                shutil.copy(d / "fast.json", d / "R.json")
+            p = _run(form, d)
+            ran.append(form)
+            if " --json" in form:
+                json.loads(p.stdout.strip().splitlines()[-1])
+    assert (d / "fast.json").exists() and (d / "bend_basis.json").exists()
+    assert (d / "curve.json").exists() and (d / "OUT.csv").read_text().startswith("t,")
+    assert any("--resume" in f for f in ran) and any("--extrapolate" in f for f in ran)
+
+
+def test_bench_scripts_help(scratch):
+    for line in readme_commands():
+        if line.startswith(".venv/bin/python bench/"):
+            script = line.split()[1]
+            p = _run(f".venv/bin/python {script} --help", scratch, timeout=120)
+            assert "usage" in p.stdout.lower()
+
+
+def test_docker_block(tmp_path):
+    shutil.copy(ROOT / ".env.example", tmp_path / ".env.example")
+    lines = [c for c in readme_commands() if c.startswith(("cp ", "docker "))]
+    _run(_strip_comment(lines[0]), tmp_path)
+    assert (tmp_path / ".env").read_text() == (ROOT / ".env.example").read_text()
+    if shutil.which("docker") is None or subprocess.run(
+            ["docker", "info"], capture_output=True, timeout=30).returncode != 0:
+        pytest.skip("no Docker daemon answers on this machine: the `docker compose` lines "
+                    "were not run (the cp line was)")
+    for line in lines[1:]:  # pragma: no cover - needs a Docker daemon
+        _run(_strip_comment(line).replace(" -f ", " "), ROOT, timeout=1800)
+    _run("docker compose down", ROOT, timeout=300)
+
+
+def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 90.0) -> None:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        assert proc.poll() is None, f"server exited {proc.returncode}"
+        try:
+            if httpx.get(url, timeout=2.0).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.3)
+    raise AssertionError(f"{url} did not answer 200 within {timeout} s")
+
+
+def _stop(proc: subprocess.Popen, timeout: float = 30.0) -> int:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+    return proc.returncode
+
+
+def _start(cmd: str, cwd: Path, env: dict[str, str], log: Path) -> subprocess.Popen:
+    return subprocess.Popen(["bash", "-c", f"exec {cmd}"], cwd=cwd, env=env,
+                            stdout=log.open("wb"), stderr=subprocess.STDOUT,
+                            start_new_session=True)
+
+
+def test_cmrt_serve_embedded(scratch, tmp_path):
+    line = next(_strip_comment(c) for c in readme_commands()
+                if c.startswith(".venv/bin/cmrt serve"))
+    port = _free_port()
+    env = _env(CMRT_API_PORT=str(port), CMRT_DATA_DIR=str(tmp_path / "data"), CMRT_WORKERS="1")
+    proc = _start(line, scratch, env, tmp_path / "serve.log")
+    try:
+        _wait_http(f"http://127.0.0.1:{port}/health", proc)
+    finally:
+        rc = _stop(proc)
+    assert rc == 0, (tmp_path / "serve.log").read_text()[-3000:]
+    assert (tmp_path / "data" / "cmrt.db").exists()
+
+
+def _redis_db() -> str:
+    return f"{REDIS}/{9 + uuid.uuid4().int % 6}"
+
+
+def test_cmrt_worker(scratch, tmp_path):
+    line = next(_strip_comment(c) for c in readme_commands()
+                if c.startswith(".venv/bin/cmrt worker"))
+    env = _env(CMRT_BROKER_URL=_redis_db(), CMRT_DATABASE_URL=f"sqlite:///{tmp_path}/w.db",
+               CMRT_WORKER_CONCURRENCY="1")
+    proc = _start(line, scratch, env, tmp_path / "worker.log")
+    try:
+        t0 = time.monotonic()
+        while subprocess.run([str(VENV_BIN / "cmrt"), "worker", "--ping"], env=env,
+                             capture_output=True, timeout=60).returncode != 0:
+            assert proc.poll() is None, (tmp_path / "worker.log").read_text()[-3000:]
+            assert time.monotonic() - t0 < 90, "the worker never answered a ping"
+            time.sleep(1.0)
+    finally:
+        rc = _stop(proc)
+    assert rc == 0, (tmp_path / "worker.log").read_text()[-3000:]
+
+
+@pytest.fixture
+def pg_url():
+    from sqlalchemy import create_engine, text
+    from sqlalchemy.engine import make_url
+
+    admin = create_engine(PG_URL, connect_args={"connect_timeout": 3})
+    try:
+        with admin.connect() as c:
+            c.execute(text("SELECT 1"))
+    except Exception as err:  # noqa: BLE001
+        admin.dispose()
+        pytest.skip(f"PostgreSQL at {PG_URL} unreachable: {err}")
+    schema = f"cmrt_readme_{uuid.uuid4().hex[:8]}"
+    with admin.begin() as c:
+        c.execute(text(f'CREATE SCHEMA "{schema}"'))
+    url = make_url(PG_URL).update_query_dict({"options": f"-csearch_path={schema}"})
+    yield url.render_as_string(hide_password=False)
+    with admin.begin() as c:
+        c.execute(text(f'DROP SCHEMA IF EXISTS "{schema}" CASCADE'))
+    admin.dispose()
+
+
+def _seed(api: str, scratch: Path) -> dict[str, str]:
+    """Library entries the README's queries find: bends at 0.3-0.9 s, pushes of 200 and 400 N,
+    a basis; tiny budgets. Returns JOB-independent ids for the README's variables."""
+    fast = yaml.safe_load((scratch / "examples" / "fast_bend.yaml").read_text())
+    push = yaml.safe_load((scratch / "examples" / "push.yaml").read_text())
+    push["optimize"] = {**push.get("optimize", {}), **TINY}
+
+    def set_force(d, force):
+        for k, v in d.items():
+            if k == "force":
+                d[k] = force
+            elif isinstance(v, dict):
+                set_force(v, force)
+
+    specs = [{**fast, "name": f"bend_{t}", "clip": {"preparation": 0.3, "duration": t,
+                                                    "decay": 0.3}} for t in (0.3, 0.5, 0.7, 0.9)]
+    for force in (200.0, 400.0):
+        p = json.loads(json.dumps(push))
+        p["name"] = f"push_{force:g}"
+        set_force(p, force)
+        specs.append(p)
+    ids = []
+    for spec in specs:
+        r = httpx.post(f"{api}/jobs", json=spec, timeout=30)
+        assert r.status_code == 202, r.text
+        ids.append(r.json()["id"])
+    t0 = time.monotonic()
+    for job_id in ids:
+        while True:
+            j = httpx.get(f"{api}/jobs/{job_id}", timeout=30).json()
+            if j["status"] in ("converged", "stopped", "failed", "cancelled"):
+                assert j["status"] in ("converged", "stopped"), j
+                break
+            assert time.monotonic() - t0 < 300, f"seed job {job_id} still {j['status']}"
+            time.sleep(0.3)
+    cmrt = httpx.get(f"{api}/jobs/{ids[0]}", timeout=30).json()["cmrt_id"]
+    r = httpx.post(f"{api}/bases", json={"family": "bend", "k": 3}, timeout=60)
+    assert r.status_code == 201, r.text
+    (scratch / "spec.json").write_text(json.dumps(specs[1]))
+    return {"CMRT": cmrt, "BASIS": r.json()["id"]}
+
+
+def test_servers_and_every_curl(scratch, tmp_path, pg_url):
+    cmds = readme_commands()
+    port = _free_port()
+    env = _env(CMRT_DATABASE_URL=pg_url, CMRT_BROKER_URL=_redis_db(), CMRT_WORKERS="1")
+    exports = [c for c in cmds if c.startswith("export CMRT_")]
+    assert {c.split("=")[0] for c in exports} == {"export CMRT_DATABASE_URL",
+                                                 "export CMRT_BROKER_URL"}
+    serve = next(_strip_comment(c) for c in cmds if c.startswith("cmrt serve --host"))
+    worker = next(_strip_comment(c) for c in cmds if c.startswith("cmrt worker --concurrency"))
+    assert serve.endswith(" &") and worker.endswith(" &")
+    serve = serve[:-2].replace("--port 8000", f"--port {port}")  # 8000 may be taken
+    procs = [_start(serve, scratch, env, tmp_path / "serve.log"),
+             _start(worker[:-2], scratch, env, tmp_path / "worker.log")]
+    api = f"http://127.0.0.1:{port}"
+    try:
+        _wait_http(f"{api}/health", procs[0])
+        ids = _seed(api, scratch)
+        curl_env = {**env, "API": api, **ids}
+        statuses = {}
+        wrap = ("curl() { command curl -w '\\nHTTP_STATUS %{http_code}\\n' \"$@\"; }; "
+                "export -f curl; ")
+        for c in cmds:
+            if not c.startswith(("curl ", "python -c ", "open $API")):
+                continue
+            cmd = ("curl -s " + c[len("open "):]) if c.startswith("open ") else c
+            p = _run(wrap + cmd, scratch, curl_env, timeout=120)
+            codes = re.findall(r"HTTP_STATUS (\d+)", p.stdout)
+            assert codes, f"{c!r}: no HTTP status in {p.stdout[-500:]}"
+            code = int(codes[-1])
+            statuses[c] = code
+            if c.startswith("curl -s -X POST $API/jobs -H") and "JOB" not in curl_env:
+                curl_env["JOB"] = json.loads(p.stdout.split("HTTP_STATUS")[0])["id"]
+            ok = {202, 409} if c.endswith("# 202; 409 if already finished") else range(200, 300)
+            assert code in ok, f"{c!r} answered {code}: {p.stdout[-1500:]}"
+        assert len(statuses) > 20, statuses  # every curl line of the README ran
+        # leave nothing running: cancel what the README's submissions started
+        for j in httpx.get(f"{api}/jobs?limit=200", timeout=30).json()["items"]:
+            if j["status"] in ("queued", "running"):
+                httpx.post(f"{api}/jobs/{j['id']}/cancel", timeout=30)
+    finally:
+        rcs = [_stop(p) for p in procs]
+    assert rcs == [0, 0], [(tmp_path / n).read_text()[-2000:] for n in ("serve.log",
+                                                                       "worker.log")]
+
+
+if __name__ == "__main__":  # pragma: no cover
+    print("\n".join(readme_commands()))
+    sys.exit(0)

@@ -1,0 +1,50 @@
+"""Reads the tests need that the service does not (so they are not part of the Repository):
+straight SQL on the repository's engine, returning the store's records."""
+
+from __future__ import annotations
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session, undefer
+
+from store.errors import NotFound
+from store.models import Basis, Cmrt, Evaluation, Job
+from store.records import BasisRecord, EvaluationRecord
+from store.sql import _basis_record, _evaluation_record
+
+
+def get_evaluation(repo, job_id: str, generation: int, index: int) -> EvaluationRecord:
+    """One evaluation; raises NotFound."""
+    with Session(repo.engine) as s:
+        ev = s.scalars(select(Evaluation).where(
+            Evaluation.job_id == job_id, Evaluation.generation == generation,
+            Evaluation.index == index)).one_or_none()
+        if ev is None:
+            raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
+        return _evaluation_record(ev)
+
+
+def get_optimizer_state(repo, job_id: str) -> bytes | None:
+    """The job's pickled optimizer of its newest generation; raises NotFound."""
+    with Session(repo.engine) as s:
+        job = s.scalars(select(Job).options(undefer(Job.optimizer_state))
+                        .where(Job.id == job_id)).one_or_none()
+        if job is None:
+            raise NotFound(f"job {job_id} not found")
+        return job.optimizer_state
+
+
+def cmrt_families(repo) -> dict[str, int]:
+    """Family name -> number of library CMRTs."""
+    with Session(repo.engine) as s:
+        rows = s.execute(select(Cmrt.family, func.count()).group_by(Cmrt.family)
+                         .order_by(Cmrt.family)).all()
+        return {f: int(n) for f, n in rows}
+
+
+def list_bases(repo, family: str | None = None) -> list[BasisRecord]:
+    """Bases (of one family if given), newest first."""
+    conds = [] if family is None else [Basis.family == family]
+    with Session(repo.engine) as s:
+        rows = s.scalars(select(Basis).where(*conds)
+                         .order_by(Basis.created_at.desc(), Basis.id)).all()
+        return [_basis_record(b) for b in rows]

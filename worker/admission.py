@@ -1,0 +1,87 @@
+"""Admission of a job: its budget, and the server's ceiling on it.
+
+A job's budget is what it may cost at most, in simulated seconds: every evaluation simulates
+one clip, so
+
+    evaluations  = max_evaluations + (popsize - 1) + 2
+    sim_seconds  = evaluations x clip length (preparation + duration + decay)
+
+(the cap is checked between generations, so the last generation may overshoot it by fewer than
+`popsize` evaluations; the final re-evaluation of the flat spline and the best candidate adds
+2). `popsize` is the spec's, or pycma's default 4 + floor(3 ln d) for the d searched
+coordinates. A CPU second buys roughly 14 simulated seconds on the development machine
+(`cmrt bench`), so the default ceiling of 50,000 simulated seconds is about an hour of one
+core.
+
+`check(spec, settings)` raises `BudgetExceeded` (a domain error: the HTTP layer answers 422 with
+its message, the driver fails a job that was accepted under a higher ceiling) when the budget is
+above `settings.max_job_sim_seconds` (CMRT_MAX_JOB_SIM_SECONDS).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from cmrt.settings import Settings
+from sim.spec import TaskSpec
+
+#: Evaluations added to the cap: the final flat-spline and best-candidate re-evaluation.
+FINAL_EVALUATIONS = 2
+
+
+class BudgetExceeded(ValueError):  # noqa: N818 - the name says what happened
+    """A job's budget is above the server's ceiling; the message names the field and rule."""
+
+
+def default_popsize(dimension: int) -> int:
+    """pycma's default population for a `dimension`-dimensional search."""
+    return 4 + int(3 * math.log(max(dimension, 1)))
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The most a job may cost (see the module docstring)."""
+
+    evaluations: int
+    clip_seconds: float
+    sim_seconds: float
+    ceiling_sim_seconds: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def budget(spec: TaskSpec, settings: Settings | None = None, *, dimension: int | None = None
+           ) -> Budget:
+    """The job's budget; `dimension` is the searched one (a PCA basis' k; default the spec's)."""
+    opt = spec.optimize
+    popsize = opt.popsize or default_popsize(dimension or spec.cmrt_dimension)
+    evaluations = int(opt.max_evaluations) + popsize - 1 + FINAL_EVALUATIONS
+    clip = float(spec.clip.length)
+    return Budget(
+        evaluations=evaluations,
+        clip_seconds=clip,
+        sim_seconds=evaluations * clip,
+        ceiling_sim_seconds=None if settings is None else settings.max_job_sim_seconds,
+    )
+
+
+def check(spec: TaskSpec, settings: Settings, *, dimension: int | None = None) -> Budget:
+    """The job's budget, or BudgetExceeded when it is above the server's ceiling."""
+    b = budget(spec, settings, dimension=dimension)
+    ceiling = settings.max_job_sim_seconds
+    if b.sim_seconds > ceiling:
+        overshoot = b.evaluations - int(spec.optimize.max_evaluations)
+        most = max(0, int(ceiling // b.clip_seconds) - overshoot)
+        raise BudgetExceeded(
+            f"optimize.max_evaluations: the job may simulate up to {b.sim_seconds:,.0f} s "
+            f"({b.evaluations} evaluations x {b.clip_seconds:g} s clips), above this server's "
+            f"ceiling of {ceiling:,.0f} simulated seconds per job (CMRT_MAX_JOB_SIM_SECONDS); "
+            f"lower optimize.max_evaluations to at most {most} or shorten the clip"
+        )
+    return b
+
+
+__all__ = ["FINAL_EVALUATIONS", "Budget", "BudgetExceeded", "budget", "check", "default_popsize"]
