@@ -1,7 +1,8 @@
 """`python tests/service/fuzz_server.py DATA_DIR PORT`: the API for the schemathesis run.
 
 On a fresh SQLite database in DATA_DIR it first fills the library the real way, through the
-HTTP API (three bend jobs optimised against the synthetic objective, and a PCA basis), prints
+HTTP API (three bend jobs optimised against the synthetic objective, and a PCA basis; with the
+bearer token of CMRT_API_TOKEN when the environment sets one), prints
 the ids as one JSON line, then serves the app under uvicorn on 127.0.0.1:PORT with the job
 drivers off, so the jobs the fuzzer submits are validated and stored but start no simulation.
 """
@@ -30,12 +31,18 @@ from worker.executors import LocalPoolExecutor  # noqa: E402
 TERMINAL = ("converged", "stopped", "failed", "cancelled")
 
 
+def _auth(settings: Settings) -> dict[str, str]:
+    token = settings.api_token.get_secret_value() if settings.api_token else ""
+    return {"Authorization": f"Bearer {token}"} if token else {}
+
+
 def seed_library(settings: Settings) -> dict[str, str]:
     repo = open_repository(settings.database_url)
     config = settings.model_copy(update={"poll_interval": 0.02, "scan_interval": 0.1})
     executor = LocalPoolExecutor(config, pool=SerialExecutor(),
                                  objective_factory=lambda spec: Sphere(centre=0.3))
-    with TestClient(create_app(config, repo=repo, executor=executor)) as c:
+    with TestClient(create_app(config, repo=repo, executor=executor),
+                    headers=_auth(settings)) as c:
         jobs = [c.post("/jobs", json=bend_spec(f"bend_{i}", d)).json()["id"]
                 for i, d in enumerate((0.3, 0.4, 0.5))]
         deadline = time.monotonic() + 60
@@ -54,7 +61,8 @@ def main(data_dir: str, port: int) -> None:
     ids = seed_library(settings)
     app = create_app(settings, run_drivers=False)
     # a job left queued (no driver runs here), for the cancel operation
-    ids["queued_job_id"] = TestClient(app).post("/jobs", json=JOB_EXAMPLE).json()["id"]
+    ids["queued_job_id"] = TestClient(app, headers=_auth(settings)).post(
+        "/jobs", json=JOB_EXAMPLE).json()["id"]
     print(json.dumps(ids), flush=True)
     uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning")
 

@@ -4,13 +4,16 @@ The app runs under uvicorn on a fresh SQLite database (tests/service/fuzz_server
 library built first, then the job drivers off, so fuzzed jobs are stored but start nothing).
 schemathesis runs every check (`--checks all`) in its coverage, fuzzing and stateful phases
 (and the examples phase on the documented examples) with a fixed seed: no server error, no
-response that breaks the document. The figures are printed (pytest -s) and written to
-`schemathesis-figures.json` in the test's temporary folder.
+response that breaks the document. It runs twice: on the open API, and on the API closed by
+CMRT_API_TOKEN (reads closed too) with the token sent, where schemathesis' `ignored_auth` check
+also sends each operation without it and expects a 401. The figures are printed (pytest -s)
+and written to `schemathesis-figures.json` in the test's temporary folder.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -44,13 +47,24 @@ def _schemathesis() -> list[str]:
     return [found]
 
 
-@pytest.fixture
-def served(tmp_path):
+#: The bearer token of the closed-API run.
+TOKEN = "fuzz-token"
+
+
+@pytest.fixture(params=["open", "token"])
+def served(request, tmp_path):
+    """The served app: open, or closed by CMRT_API_TOKEN (reads too); yields (url, ids,
+    extra schemathesis arguments)."""
     port = _free_port()
     log = (tmp_path / "server.log").open("w")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
+    extra: list[str] = []
+    if request.param == "token":
+        env["CMRT_API_TOKEN"] = TOKEN
+        extra = ["-H", f"Authorization: Bearer {TOKEN}"]
     proc = subprocess.Popen(
         [sys.executable, str(HERE / "fuzz_server.py"), str(tmp_path), str(port)],
-        stdout=subprocess.PIPE, stderr=log, text=True)
+        stdout=subprocess.PIPE, stderr=log, text=True, env=env)
     try:
         line = proc.stdout.readline()
         assert line, f"fuzz_server.py exited: {(tmp_path / 'server.log').read_text()[-2000:]}"
@@ -65,7 +79,7 @@ def served(tmp_path):
                 pass
             assert time.monotonic() < deadline, "the server did not answer /health in 30 s"
             time.sleep(0.2)
-        yield url, ids
+        yield url, ids, extra
     finally:
         proc.terminate()
         try:
@@ -77,7 +91,7 @@ def served(tmp_path):
 
 
 def test_schemathesis_all_checks(served, tmp_path):
-    url, ids = served
+    url, ids, extra = served
     config = (HERE / "schemathesis.toml.in").read_text()
     for k, v in ids.items():
         config = config.replace(f"@{k}@", v)
@@ -85,7 +99,7 @@ def test_schemathesis_all_checks(served, tmp_path):
     report = tmp_path / "report.json"
     cmd = [*_schemathesis(), "--config-file", str(tmp_path / "schemathesis.toml"), "run",
            f"{url}/openapi.json", "--checks", "all", "--max-examples", str(MAX_EXAMPLES),
-           "--report", "json", "--report-json-path", str(report)]
+           *extra, "--report", "json", "--report-json-path", str(report)]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=MAX_SECONDS,
                          cwd=tmp_path)
     assert report.exists(), run.stdout[-4000:] + run.stderr[-2000:]
