@@ -30,6 +30,7 @@ local (`LocalTopology`): each application service's own `command` and `environme
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import shutil
@@ -407,15 +408,19 @@ class LocalTopology(BaseTopology):
 
     def workers_answering(self, timeout: float = 1.0) -> list[str]:
         """Node names of the Celery workers that answer a broadcast ping now (sent from the
-        root namespace: a worker answers only once its broker connection works again)."""
-        from celery import Celery
+        root namespace: a worker answers only once its broker connection works again).
 
-        app = Celery("cmrt-it-ping", broker=f"redis://127.0.0.1:{self.redis_port}/0")
-        try:
-            replies = app.control.ping(timeout=timeout)
-        finally:
-            app.close()
-        return sorted(name for r in replies for name in r)
+        In a child process: a Celery app used in the test process leaves connections that
+        multiprocessing's after-fork hooks close in every forked child, and two children
+        closing the same inherited socket can hang (the store's fork tests did)."""
+        code = ("import json, sys; from celery import Celery; "
+                "app = Celery('cmrt-it-ping', broker=sys.argv[1]); "
+                "print(json.dumps(app.control.ping(timeout=float(sys.argv[2]))))")
+        r = subprocess.run([sys.executable, "-c", code, f"redis://127.0.0.1:{self.redis_port}/0",
+                            str(timeout)], capture_output=True, text=True, timeout=60 + timeout)
+        if r.returncode != 0:
+            raise RuntimeError(f"celery ping failed: {r.stderr[-2000:]}")
+        return sorted(name for reply in json.loads(r.stdout) for name in reply)
 
     def cut_worker_link(self) -> None:
         if self.worker_host is None:
