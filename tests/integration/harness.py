@@ -387,10 +387,14 @@ class LocalTopology(BaseTopology):
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.worker_link_unavailable = (netns_unavailable() if self.netns else
                                         "LocalTopology(netns=False): workers on this host")
-        if self.worker_link_unavailable is None:
-            self.worker_host = NetnsHost.create()
 
     # -- the workers' host -------------------------------------------------------------------
+    def _ensure_worker_host(self) -> None:
+        """Made with the first service (start_redis), not by the constructor, so that a
+        topology never started leaves nothing behind; stop_all deletes it."""
+        if self.worker_host is None and self.worker_link_unavailable is None:
+            self.worker_host = NetnsHost.create()
+
     def _start_pg_link(self) -> None:
         """The worker host's way to PostgreSQL: a forwarder on the link's root side
         (tcp_forward.py), since the server listens on the root namespace's loopback only."""
@@ -440,6 +444,7 @@ class LocalTopology(BaseTopology):
         argv = [interpolate(a, {}) for a in self._service("redis")["command"]]
         if not shutil.which(argv[0]):
             raise RuntimeError(f"{argv[0]} not found: install redis-server for the topology tests")
+        self._ensure_worker_host()
         self.redis_port = self.redis_port or free_port()
         data = self.workdir / "redis"
         data.mkdir(exist_ok=True)
@@ -579,6 +584,7 @@ class LocalTopology(BaseTopology):
         self.stop_redis()
         if self.worker_host is not None:
             self.worker_host.destroy()
+            self.worker_host = None
 
     def logs(self) -> str:
         return "\n".join(f"--- {p.name} ---\n{p.tail(60)}"
