@@ -215,14 +215,14 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
     try:
         s = spec
         job = repo.create_job(s.model_dump(mode="json"), name=s.name, family=s.family_name,
-                              task=s.task, seed=0)
+                              task=s.task_type, seed=0)
 
         def check() -> None:
             if proc.poll() is not None:
                 raise RuntimeError(f"worker exited: see {log.name}")
 
         repo.put_pending_evaluations(job.id, 0, [list(map(float, x)) for x in warm])
-        ex.evaluate(repo, job.id, job.spec, 0, len(warm), check)
+        ex.evaluate(repo, job.id, s, 0, len(warm), check)
         generation = 0
 
         def backends() -> list[int]:
@@ -237,7 +237,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
             acct = _CpuAccount({"children": _children(proc.pid), "parent": [proc.pid],
                                 "redis": [scratch.redis.pid], "postgres": backends()})
             t0 = time.perf_counter()
-            rows = ex.evaluate(repo, job.id, job.spec, generation, len(batch), check)
+            rows = ex.evaluate(repo, job.id, s, generation, len(batch), check)
             dt = time.perf_counter() - t0
             cpu = acct.stop()
             assert all(r.status == "done" for r in rows)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import math
 import signal
 import sys
@@ -156,14 +157,20 @@ def cmd_interpolate(args: argparse.Namespace) -> int:
 
 # ---- bench ------------------------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
-    from sim.bench import run_bench
+    from sim import load_spec
+    from sim.bench import run_bench, run_task_bench
 
-    report = run_bench(seconds=args.seconds)
+    specs = [load_spec(p) for p in args.specs]  # parse them all before measuring anything
+    reports = [run_bench(seconds=args.seconds)]
+    reports += [run_task_bench(spec, seconds=args.seconds) for spec in specs]
     if args.json:
-        print(json.dumps(report))
+        print(json.dumps(reports[0] if not specs else reports))
     else:
-        for k, v in report.items():
-            print(f"{k:>34}: {_fmt(v)}")
+        for i, report in enumerate(reports):
+            if i:
+                print()
+            for k, v in report.items():
+                print(f"{k:>34}: {_fmt(v)}")
     return 0
 
 
@@ -178,13 +185,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
     settings = get_settings()
     if args.workers is not None:
         settings = settings.model_copy(update={"workers": args.workers})
+    level = (args.log_level or settings.log_level).upper()
+    logging.basicConfig(level=level, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         app = create_app(settings)
     except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
         return _die(f"serve: {err}")
     uvicorn.run(app, host=args.host or settings.api_host, port=args.port or settings.api_port,
-                log_level=(args.log_level or settings.log_level).lower(),
-                timeout_graceful_shutdown=5)
+                log_level=level.lower(), timeout_graceful_shutdown=5)
     return 0
 
 
@@ -258,6 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
     o.set_defaults(func=cmd_optimize)
 
     b = sub.add_parser("bench", help="CPU seconds per simulated second, controller vs raw ODE")
+    b.add_argument("specs", nargs="*", metavar="SPEC",
+                   help="also measure these task specs' worlds (props included) and clips")
     b.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per case")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)

@@ -31,8 +31,12 @@ CMRT_WORKER_CONCURRENCY   `cmrt worker` processes                     None (the 
 CMRT_LOG_LEVEL            log level of `cmrt serve` / `cmrt worker`   INFO
 CMRT_MAX_JOB_SIM_SECONDS  ceiling of a job's budget (simulated s:     50000
                           evaluations x clip length; worker.admission)
-CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 8
+CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 4
                           has in the queue at once (fair share)
+CMRT_API_TOKEN            bearer token the API requires; unset: open  None
+CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
+CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
+CMRT_SIMULATION_WORKERS   API processes for POST /simulations clips   1
 ========================  ==========================================  =========================
 
 Invariant (checked): eval_time_limit < visibility_timeout, so Redis never re-delivers a message
@@ -48,7 +52,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 DEFAULT_DATA_DIR = Path("./cmrt-data")
@@ -98,9 +102,20 @@ class Settings(BaseSettings):
     #: Celery: the most evaluations of one job sent and not yet resolved at any time, so jobs
     #: share the queue (a small job waits behind at most this many of a large one's); about
     #: twice the evaluation processes keeps them all busy between the driver's polls.
-    dispatch_window: Annotated[int, Field(ge=1, le=10_000)] = 8
+    dispatch_window: Annotated[int, Field(ge=1, le=10_000)] = 4
     #: Log level of `cmrt serve` and `cmrt worker`.
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"] = "INFO"
+
+    #: Bearer token of the HTTP API (`Authorization: Bearer <token>`); None: no authentication.
+    api_token: SecretStr | None = None
+    #: With a token: True leaves the read-only endpoints open to everyone, False closes them too.
+    api_public_reads: bool = False
+    #: Base of the absolute URLs the API returns (e.g. https://cmrt.example); None: the API
+    #: returns paths (`/jobs/<id>`). Never taken from the request's Host header.
+    public_url: Annotated[str | None, Field(pattern=r"^https?://[^\s/?#]+(/[^\s?#]*)?$")] = None
+
+    #: Processes of the API's own pool for what-if clips (POST /simulations).
+    simulation_workers: Annotated[int, Field(ge=1, le=64)] = 1
 
     @field_validator("worker_concurrency", mode="before")
     @classmethod
@@ -111,6 +126,11 @@ class Settings(BaseSettings):
     @classmethod
     def _upper(cls, v: object) -> object:
         return v.upper() if isinstance(v, str) else v
+
+    @field_validator("api_token", "public_url", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, v: object) -> object:
+        return None if v == "" else v
 
     @model_validator(mode="after")
     def _defaults_and_invariants(self) -> Settings:

@@ -5,7 +5,8 @@ Modules:
     optim.cmaes        CMA-ES wrapper (own RNG, picklable) and the paper's stopping rules
     optim.executors    serial / process-pool evaluation of candidate batches
     optim.objective    the simulation objective (one Simulator per process)
-    optim.run          the ask/tell loop with atomic checkpoints and resume
+    optim.loop         the one optimisation loop (CLI and service): step, stop rules, final pair
+    optim.run          `cmrt optimize`: the loop with atomic checkpoint files and resume
     optim.result       OptimizationResult (JSON file format)
     optim.pca          PCA basis of a family of results, reduced-space search
     optim.interpolate  interpolation of results along a task parameter

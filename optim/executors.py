@@ -86,6 +86,19 @@ def _exit_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="cmrt-parent-watch", daemon=True).start()
 
 
+def kill_process_pool(pool: cf.ProcessPoolExecutor) -> None:
+    """Kill a process pool's worker processes (SIGKILL) and shut it down without waiting."""
+    procs = list(getattr(pool, "_processes", {}).values())  # private, but the only handle
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.kill()
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(timeout=5.0)
+
+
 class Executor(ABC):
     """Evaluates batches of candidates; a context manager (`close()` on exit)."""
 
@@ -179,17 +192,8 @@ class PoolExecutor(Executor):
 
     def _kill_pool(self) -> None:
         pool, self._pool = self._pool, None
-        if pool is None:
-            return
-        procs = list(getattr(pool, "_processes", {}).values())  # private, but the only handle
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.kill()
-        with contextlib.suppress(Exception):
-            pool.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.join(timeout=5.0)
+        if pool is not None:
+            kill_process_pool(pool)
 
     def map(self, fn: Objective, batch: Sequence[np.ndarray]) -> list[EvalOutcome]:
         if len(batch) == 0:
@@ -251,5 +255,6 @@ __all__ = [
     "PoolExecutor",
     "SerialExecutor",
     "evaluate_one",
+    "kill_process_pool",
     "make_executor",
 ]

@@ -4,11 +4,30 @@ The task spec itself is `sim.spec.TaskSpec`, the one model shared with the CLI."
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from sim.spec import TaskSpec
+
+__all__ = ["TaskSpec"]
+
+#: Longest inline CMRT parameter vector accepted (3 per knot, at most 16 knots).
+MAX_CMRT_PARAMS = 48
+
+
+#: The example body of `POST /jobs` in the OpenAPI document (examples/fast_bend.yaml's task;
+#: tests/service checks that it is accepted).
+JOB_EXAMPLE: dict[str, Any] = {
+    "name": "fast_bend",
+    "family": "bend",
+    "clip": {"preparation": 1.0, "duration": 0.4, "decay": 1.2},
+    "task": {"type": "pose_change",
+             "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
+    "optimize": {"threshold": 1.1, "max_evaluations": 700},
+}
+#: The example body of `POST /bases`.
+BASIS_EXAMPLE: dict[str, Any] = {"family": "bend", "k": 2}
 
 
 class Problem(BaseModel):
@@ -118,3 +137,71 @@ class BasisRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     family: Annotated[str, Field(min_length=1, max_length=100)]
     k: Annotated[int, Field(ge=1, le=16)] = 3
+
+
+# ---- what-if simulations ------------------------------------------------------------------
+class LibraryCmrt(BaseModel):
+    """A CMRT of the library, by id."""
+
+    model_config = ConfigDict(extra="forbid")
+    source: Literal["library"]
+    id: Annotated[str, Field(min_length=1, max_length=64)]
+
+
+class JobBestCmrt(BaseModel):
+    """The best candidate a job has found so far (or finished with)."""
+
+    model_config = ConfigDict(extra="forbid")
+    source: Literal["job"]
+    id: Annotated[str, Field(min_length=1, max_length=64)]
+
+
+class InlineCmrt(BaseModel):
+    """Spline parameters given inline (the spec's `cmrt` parameterisation, values in [0, 1])."""
+
+    model_config = ConfigDict(extra="forbid")
+    source: Literal["params"]
+    params: Annotated[list[Annotated[float, Field(strict=True, allow_inf_nan=False)]],
+                      Field(min_length=1, max_length=MAX_CMRT_PARAMS)]
+
+
+CmrtChoice = Annotated[LibraryCmrt | JobBestCmrt | InlineCmrt, Field(discriminator="source")]
+
+
+class SimulationRequest(BaseModel):
+    """One clip of `spec`, with the CMRT `cmrt` (null or absent: no anticipation)."""
+
+    model_config = ConfigDict(extra="forbid")
+    spec: TaskSpec
+    cmrt: CmrtChoice | None = None
+    traces: bool = Field(True, strict=True,
+                         description="include the 1 kHz traces (t, cp, support, cm, ...)")
+    frames: bool = Field(False, strict=True,
+                         description="include the 100 Hz replay frames (body poses)")
+
+
+class SimulationOut(BaseModel):
+    """`status` "done" with the outcome, or "failed" with `error` (the simulation diverged, its
+    process died, or it ran past the time limit)."""
+
+    status: Literal["done", "failed"]
+    error: str | None = None
+    cmrt: dict[str, Any] | None = None
+    objective: float | None = None
+    fell: bool | None = None
+    fall_time: float | None = None
+    fall_reason: str | None = None
+    fall_direction: Literal["forward", "backward"] | None = None
+    task_success: bool | None = None
+    task_penalty: float | None = None
+    error_norm: float | None = None
+    max_abs_error: float | None = None
+    sim_seconds: float | None = None
+    cpu_seconds: float | None = None
+    steps: int | None = None
+    contact_steps: int | None = None
+    traces: dict[str, list[Any]] | None = None
+    frames: dict[str, Any] | None = None
+
+
+SIMULATION_EXAMPLE: dict[str, Any] = {"spec": JOB_EXAMPLE, "cmrt": None, "traces": False}

@@ -31,6 +31,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -58,6 +59,7 @@ from store.records import (
     CONVERGED,
     EVAL_FAILED,
     FAILED,
+    PENDING,
     QUEUED,
     RUNNING,
     STOPPED,
@@ -208,6 +210,8 @@ class JobDriver:
         self.space: SearchSpace
         self._lease: _Lease | None = None
         self._last_cancel_check = 0.0
+        #: (previous owner, its lease's expiry) when this driver took over a dead driver's job.
+        self._took_over: tuple[str, Any] | None = None
 
     # -- interruption --------------------------------------------------------------------------
     def check(self, force: bool = False) -> None:
@@ -229,10 +233,13 @@ class JobDriver:
         (could not) finish it (lease held elsewhere, shutdown, database unavailable)."""
         ttl = self.config.lease_seconds
         try:
+            before = self.repo.get_job(self.job_id)
             if not self.repo.acquire_driver_lease(self.job_id, self.owner, ttl):
                 return None
         except NotFound:
             return None
+        if before.driver_owner not in (None, self.owner):  # its driver died: lease expired
+            self._took_over = (before.driver_owner, before.lease_expires_at)
         self._lease = _Lease(self.repo, self.job_id, self.owner, ttl)
         self._lease.start()
         try:
@@ -293,6 +300,8 @@ class JobDriver:
         state = StoreRunState(self)
         opt = state.restore() or new_optimizer(
             spec, self.space, int(job.seed if job.seed is not None else 0))
+        if self._took_over is not None:
+            self._log_takeover(opt.iterations)
         t_job = time.monotonic()
         evaluator = StoreEvaluator(self, spec)
         stop_rule = run_generations(opt, self.space, evaluator, state)
@@ -303,6 +312,18 @@ class JobDriver:
         log.info("job %s: %s (%s) after %d generations, %.1f s", self.job_id, status, stop_rule,
                  opt.iterations, time.monotonic() - t_job)
         return self._finish_status(status, stop_rule=stop_rule)
+
+    def _log_takeover(self, generation: int) -> None:
+        owner, expired = self._took_over or (None, None)
+        rows = self.repo.evaluations(self.job_id, generation)
+        started = [r.index for r in rows if r.status == PENDING and r.attempts > 0]
+        done = sum(r.status != PENDING for r in rows)
+        ago = "" if expired is None else \
+            f" {(datetime.now(UTC) - expired).total_seconds():.0f} s ago"
+        log.info("job %s: taking over from driver %s whose lease expired%s; resuming at "
+                 "generation %d: %d of its %d candidates already evaluated, %d started and "
+                 "not finished, run again: %s", self.job_id, owner, ago, generation, done,
+                 len(rows), len(started), started)
 
     def _add_to_library(self, job: Any, spec: TaskSpec, final: FinalEvaluation) -> None:
         """The library entry: the better of the best candidate and the flat spline (never

@@ -54,6 +54,9 @@ def default_objective_factory(spec: TaskSpec) -> Callable[[np.ndarray], Any]:
 
 
 def attempts_exhausted_message(generation: int, index: int, attempts: int) -> str:
+    """The error of a candidate given up on. Only attempts whose process ended without a
+    result count (a graceful stop gives its attempts back: `Repository.release_attempt`), so
+    every counted attempt is one where the evaluating process died or was killed."""
     return (
         f"candidate {index} of generation {generation} was started {attempts} times and its "
         "worker process died every time (crash, out of memory, or killed past the time limit); "

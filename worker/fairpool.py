@@ -25,7 +25,6 @@ Contracts:
 from __future__ import annotations
 
 import concurrent.futures as cf
-import contextlib
 import itertools
 import logging
 import multiprocessing
@@ -42,21 +41,36 @@ from typing import Any
 import numpy as np
 
 from optim.errors import EvaluationError
-from optim.executors import DEFAULT_START_METHOD, _exit_with_parent, evaluate_one
+from optim.executors import (
+    _exit_with_parent,
+    evaluate_one,
+    kill_process_pool,
+)
 from optim.outcome import EvalOutcome
 
 log = logging.getLogger(__name__)
 
 #: Longest wait between two `check()` calls while a batch runs, seconds.
 POLL_S = 0.1
+#: Start method of the slot processes: a fork server (started like "spawn", so no thread or
+#: ODE state of the server is inherited) that has imported `FORKSERVER_PRELOAD`.
+DEFAULT_SLOT_START_METHOD = "forkserver"
+FORKSERVER_PRELOAD = ("numpy", "optim.objective", "optim.spline", "sim.clip", "worker.fairpool",
+                      "worker.slotwarm")
 
 OnResult = Callable[[int, "EvalOutcome | EvaluationError"], None]
 
 
-def _slot_init(parent_pid: int) -> None:
+def _ping() -> int:
+    return os.getpid()
+
+
+def _slot_init() -> None:
+    """Slot-process initializer: ignore group signals; exit once the parent is gone. The
+    parent is the server (spawn) or the fork server, which exits when the server does."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _exit_with_parent(parent_pid)
+    _exit_with_parent(os.getppid())
 
 
 @dataclass(eq=False)
@@ -78,36 +92,38 @@ class _Slot:
 
     def submit(self, task: _Task) -> cf.Future:
         if self.executor is None:
-            self.executor = cf.ProcessPoolExecutor(
-                max_workers=1, mp_context=self._ctx, initializer=_slot_init,
-                initargs=(os.getpid(),))
+            self._start()
         self.task = task
         task.started = time.monotonic()
         return self.executor.submit(evaluate_one, task.fn, task.params)
 
-    def kill(self) -> None:
+    def _start(self) -> None:
+        self.executor = cf.ProcessPoolExecutor(max_workers=1, mp_context=self._ctx,
+                                               initializer=_slot_init)
+
+    def kill(self, *, restart: bool = False) -> None:
+        """Kill the slot's process; with `restart` start its successor at once (its imports
+        then overlap the wait for the next candidate)."""
         ex, self.executor, self.task = self.executor, None, None
-        if ex is None:
-            return
-        procs = list(getattr(ex, "_processes", {}).values())  # private, but the only handle
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.kill()
-        with contextlib.suppress(Exception):
-            ex.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.join(timeout=5.0)
+        if restart:
+            self._start()
+            self.executor.submit(_ping)
+        if ex is not None:
+            kill_process_pool(ex)
 
 
 class FairPool:
     """See the module docstring. Thread-safe: several job drivers share one pool."""
 
     def __init__(self, workers: int, *, time_limit: float | None = None,
-                 start_method: str = DEFAULT_START_METHOD) -> None:
+                 start_method: str = DEFAULT_SLOT_START_METHOD) -> None:
         if workers < 1:
             raise ValueError(f"FairPool needs at least 1 worker, got {workers}")
         ctx = multiprocessing.get_context(start_method)
+        if start_method == "forkserver":
+            # the fork server imports the simulation once; a killed slot's successor is a
+            # fork of it (milliseconds) instead of a fresh interpreter importing everything
+            ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
         self._slots = [_Slot(i, ctx) for i in range(int(workers))]
         self._queues: OrderedDict[str, deque[_Task]] = OrderedDict()
         self._lock = threading.RLock()
@@ -186,7 +202,7 @@ class FairPool:
                 t.dropped = True
             for slot in self._slots:
                 if slot.task is not None and slot.task.job == job and slot.task in tasks:
-                    slot.kill()
+                    slot.kill(restart=not self._closed)
                     killed += 1
         self._dispatch()
         return killed

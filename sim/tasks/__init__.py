@@ -8,7 +8,9 @@ from __future__ import annotations
 
 from sim.tasks.base import Task, TaskConfig
 from sim.tasks.catch import CatchConfig
+from sim.tasks.domino import DominoConfig
 from sim.tasks.pose_change import PoseChangeConfig
+from sim.tasks.punch import PunchConfig
 from sim.tasks.push import PushConfig
 from sim.tasks.quiet_stance import QuietStanceConfig
 from sim.tasks.sequence import SequenceConfig
@@ -19,6 +21,8 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "pose_change": PoseChangeConfig,
     "sequence": SequenceConfig,
     "catch": CatchConfig,
+    "punch": PunchConfig,
+    "domino": DominoConfig,
 }
 
 __all__ = ["TASK_TYPES", "Task", "TaskConfig"]

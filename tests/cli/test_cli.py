@@ -8,11 +8,14 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 import yaml
 
 from cli.main import main
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 #: A short bend: cheap enough to optimise for two generations in a test.
 BEND = {
@@ -171,3 +174,17 @@ def test_interrupt_of_a_command_without_checkpoint_does_not_promise_one(monkeypa
     assert main(["simulate", "examples/fast_bend.yaml"]) == 130
     err = capsys.readouterr().err
     assert "interrupted" in err and "checkpoint" not in err
+
+
+def test_bench_measures_each_task_world_with_its_props(capsys):
+    """`cmrt bench SPEC...` adds one report per spec: its world stepped raw (props included)
+    against its clip under the controller, both as CPU seconds per simulated second."""
+    assert main(["bench", "--seconds", "0.2", "--json", str(EXAMPLES / "catch.yaml")]) == 0
+    quiet, catch = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert quiet["simulated_seconds"] == 0.2 and "spec" not in quiet
+    assert catch["spec"] == "catch_ball_7" and catch["props"] == 1
+    assert catch["controller_simulated_seconds"] > 0.0
+    for r in (quiet, catch):
+        assert r["raw_ode_cpu_per_sim_second"] > 0.0
+        assert r["controller_over_raw_ode"] == pytest.approx(
+            r["controller_cpu_per_sim_second"] / r["raw_ode_cpu_per_sim_second"])

@@ -30,6 +30,7 @@ local (`LocalTopology`): each application service's own `command` and `environme
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import shutil
@@ -386,10 +387,14 @@ class LocalTopology(BaseTopology):
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.worker_link_unavailable = (netns_unavailable() if self.netns else
                                         "LocalTopology(netns=False): workers on this host")
-        if self.worker_link_unavailable is None:
-            self.worker_host = NetnsHost.create()
 
     # -- the workers' host -------------------------------------------------------------------
+    def _ensure_worker_host(self) -> None:
+        """Made with the first service (start_redis), not by the constructor, so that a
+        topology never started leaves nothing behind; stop_all deletes it."""
+        if self.worker_host is None and self.worker_link_unavailable is None:
+            self.worker_host = NetnsHost.create()
+
     def _start_pg_link(self) -> None:
         """The worker host's way to PostgreSQL: a forwarder on the link's root side
         (tcp_forward.py), since the server listens on the root namespace's loopback only."""
@@ -407,15 +412,19 @@ class LocalTopology(BaseTopology):
 
     def workers_answering(self, timeout: float = 1.0) -> list[str]:
         """Node names of the Celery workers that answer a broadcast ping now (sent from the
-        root namespace: a worker answers only once its broker connection works again)."""
-        from celery import Celery
+        root namespace: a worker answers only once its broker connection works again).
 
-        app = Celery("cmrt-it-ping", broker=f"redis://127.0.0.1:{self.redis_port}/0")
-        try:
-            replies = app.control.ping(timeout=timeout)
-        finally:
-            app.close()
-        return sorted(name for r in replies for name in r)
+        In a child process: a Celery app used in the test process leaves connections that
+        multiprocessing's after-fork hooks close in every forked child, and two children
+        closing the same inherited socket can hang (the store's fork tests did)."""
+        code = ("import json, sys; from celery import Celery; "
+                "app = Celery('cmrt-it-ping', broker=sys.argv[1]); "
+                "print(json.dumps(app.control.ping(timeout=float(sys.argv[2]))))")
+        r = subprocess.run([sys.executable, "-c", code, f"redis://127.0.0.1:{self.redis_port}/0",
+                            str(timeout)], capture_output=True, text=True, timeout=60 + timeout)
+        if r.returncode != 0:
+            raise RuntimeError(f"celery ping failed: {r.stderr[-2000:]}")
+        return sorted(name for reply in json.loads(r.stdout) for name in reply)
 
     def cut_worker_link(self) -> None:
         if self.worker_host is None:
@@ -435,6 +444,7 @@ class LocalTopology(BaseTopology):
         argv = [interpolate(a, {}) for a in self._service("redis")["command"]]
         if not shutil.which(argv[0]):
             raise RuntimeError(f"{argv[0]} not found: install redis-server for the topology tests")
+        self._ensure_worker_host()
         self.redis_port = self.redis_port or free_port()
         data = self.workdir / "redis"
         data.mkdir(exist_ok=True)
@@ -574,6 +584,7 @@ class LocalTopology(BaseTopology):
         self.stop_redis()
         if self.worker_host is not None:
             self.worker_host.destroy()
+            self.worker_host = None
 
     def logs(self) -> str:
         return "\n".join(f"--- {p.name} ---\n{p.tail(60)}"

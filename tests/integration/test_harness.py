@@ -120,7 +120,9 @@ def test_mode_follows_the_engine_and_the_setting(fake_docker, tmp_path, monkeypa
     monkeypatch.delenv("CMRT_IT_MODE", raising=False)
     assert isinstance(make_topology(tmp_path / "a", {}), ComposeTopology)
     monkeypatch.setenv("CMRT_IT_MODE", "local")
-    assert isinstance(make_topology(tmp_path / "b", {}), LocalTopology)
+    local = make_topology(tmp_path / "b", {})
+    assert isinstance(local, LocalTopology)
+    assert local.worker_host is None  # nothing made (no namespace) before it is started
     monkeypatch.setenv("CMRT_IT_MODE", "swarm")
     with pytest.raises(ValueError, match="CMRT_IT_MODE"):
         make_topology(tmp_path / "c", {})

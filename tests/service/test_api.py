@@ -153,9 +153,12 @@ def test_health_openapi_dashboard(client):
               "/health"):
         assert p in paths
     page = client.get("/dashboard")
-    assert page.status_code == 200 and "/generations?after=" in page.text
-    assert "http://" not in page.text.replace("http://www.w3.org/2000/svg", "")
-    assert "https://" not in page.text
+    assert page.status_code == 200 and '<script src="/static/dashboard.js">' in page.text
+    script = client.get("/static/dashboard.js")
+    assert script.status_code == 200 and "/generations?after=" in script.text
+    for text in (page.text, script.text, client.get("/static/dashboard.css").text):
+        assert "http://" not in text.replace("http://www.w3.org/2000/svg", "")
+        assert "https://" not in text
 
 
 def test_budget_is_shown_and_a_job_above_the_ceiling_is_refused(client, repo):

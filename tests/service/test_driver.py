@@ -157,3 +157,28 @@ def test_library_entry_is_never_worse_than_the_flat_spline(repo, config, duratio
         assert entry.params == pytest.approx(list(flat_params(parse_spec(spec))))
     else:
         assert entry.params == pytest.approx(best.params)
+
+
+def test_take_over_after_a_lease_expiry_is_logged_at_info(repo, config, local_executor, caplog):
+    import logging
+    import time
+
+    from optim.loop import SearchSpace, new_optimizer
+
+    job = _job(repo)
+    spec = parse_spec(bend_spec())
+    xs = new_optimizer(spec, SearchSpace.of(spec), 1).ask()  # what the dead driver asked
+    repo.set_job_status(job.id, "running")
+    assert repo.acquire_driver_lease(job.id, "host:1:dead", 0.05)
+    repo.put_pending_evaluations(job.id, 0, [list(x) for x in xs])
+    repo.claim_evaluation(job.id, 0, 0)
+    repo.store_result(job.id, 0, 0, objective=1.0, fell=False, cpu_seconds=0.0)
+    repo.claim_evaluation(job.id, 0, 2)  # started, then its driver died
+    time.sleep(0.1)  # the lease expires
+    with caplog.at_level(logging.INFO, logger="worker.driver"):
+        assert JobDriver(repo, job.id, local_executor, config).run() == STOPPED
+    msgs = [r.getMessage() for r in caplog.records if "taking over" in r.getMessage()]
+    assert len(msgs) == 1 and msgs[0].startswith(f"job {job.id}: taking over from driver "
+                                                 "host:1:dead whose lease expired")
+    assert ("resuming at generation 0: 1 of its 4 candidates already evaluated, 1 started and "
+            "not finished, run again: [2]") in msgs[0]

@@ -352,3 +352,19 @@ def test_concurrent_claims_are_each_counted(repo: SqlRepository) -> None:
         t.join(60)
     assert sorted(seen) == list(range(1, 21))  # every claim saw its own increment
     assert get_evaluation(repo, job.id, 0, 0).attempts == 20
+
+
+def test_release_attempt_gives_back_a_stopped_attempt_only(repo: SqlRepository) -> None:
+    job = new_job(repo)
+    repo.put_pending_evaluations(job.id, 0, [[0.1], [0.2]])
+    assert repo.release_attempt(job.id, 0, 0) is False  # nothing counted: stays at 0
+    repo.claim_evaluation(job.id, 0, 0)
+    repo.claim_evaluation(job.id, 0, 0)
+    assert repo.release_attempt(job.id, 0, 0) is True
+    assert get_evaluation(repo, job.id, 0, 0).attempts == 1
+    repo.claim_evaluation(job.id, 0, 1)
+    repo.store_result(job.id, 0, 1, objective=1.0, fell=False, cpu_seconds=0.0)
+    assert repo.release_attempt(job.id, 0, 1) is False  # done: its attempt stays counted
+    assert get_evaluation(repo, job.id, 0, 1).attempts == 1
+    with pytest.raises(NotFound):
+        repo.release_attempt(job.id, 0, 9)

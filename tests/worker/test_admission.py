@@ -13,9 +13,9 @@ def _spec(popsize=None, max_evaluations=400, duration=0.4):
     opt = {"max_evaluations": max_evaluations}
     if popsize is not None:
         opt["popsize"] = popsize
-    return parse_spec({"name": "b", "family": "bend", "task": "pose_change",
+    return parse_spec({"name": "b", "family": "bend",
                        "clip": {"preparation": 1.0, "duration": duration, "decay": 1.2},
-                       "pose_change": {"target": {"waist": -90}}, "optimize": opt})
+                       "task": {"type": "pose_change", "target": {"waist": -90}}, "optimize": opt})
 
 
 def test_budget_counts_the_overshoot_and_the_final_pair():
@@ -29,9 +29,9 @@ def test_budget_counts_the_overshoot_and_the_final_pair():
 
 def test_the_issue_s_huge_job_is_refused_naming_the_field_and_the_ceiling(tmp_path):
     settings = Settings(data_dir=tmp_path)
-    huge = parse_spec({"name": "huge", "family": "bend", "task": "pose_change",
+    huge = parse_spec({"name": "huge", "family": "bend",
                        "clip": {"preparation": 1.0, "duration": 10.0, "decay": 9.0},
-                       "pose_change": {"target": {"waist": -90}},
+                       "task": {"type": "pose_change", "target": {"waist": -90}},
                        "optimize": {"popsize": 60, "max_evaluations": 100_000}})
     with pytest.raises(BudgetExceeded, match=r"optimize\.max_evaluations: .*2,001,220 s.*"
                        r"ceiling of 50,000 simulated seconds.*CMRT_MAX_JOB_SIM_SECONDS.*"

@@ -1,0 +1,106 @@
+"""Reading a JSON request body at the boundary: size limit, nesting limit, finite numbers.
+
+`read_json` refuses, before any recursive work is done on the body: more than
+`Settings.max_body_bytes` bytes (413), nesting deeper than `MAX_JSON_DEPTH` arrays/objects (400,
+checked by a flat scan, so a body of 100,000 `[` never reaches the recursive parser), malformed
+JSON (400, `NaN`/`Infinity` included), and numbers that overflow a double such as `1e999` (422
+naming the field).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from typing import Any
+
+from fastapi import Request
+
+from service.errors import ApiError
+
+#: Deepest nesting of JSON arrays/objects accepted in a request body (a task spec needs ~6).
+MAX_JSON_DEPTH = 64
+
+_STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
+_BRACKETS = re.compile(rb"[\[\]{}]")
+
+
+def json_depth(body: bytes, limit: int = MAX_JSON_DEPTH) -> int:
+    """Deepest array/object nesting of a JSON text, without parsing it; stops counting once
+    past `limit` (returns limit + 1). Brackets inside strings do not count."""
+    depth = deepest = 0
+    for m in _BRACKETS.finditer(_STRING.sub(b'""', body)):
+        if m.group() in (b"[", b"{"):
+            depth += 1
+            if depth > deepest:
+                deepest = depth
+                if deepest > limit:
+                    return deepest
+        else:
+            depth -= 1
+    return deepest
+
+
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not valid JSON")
+
+
+def non_finite_path(value: Any, path: str = "") -> str | None:
+    """Dotted path of the first non-finite float inside a parsed JSON value, or None."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else (path or "body")
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, list):
+        items = enumerate(value)
+    else:
+        return None
+    for k, v in items:
+        found = non_finite_path(v, f"{path}.{k}" if path else str(k))
+        if found is not None:
+            return found
+    return None
+
+
+def parse_json(body: bytes, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """Parse a request body (see the module docstring for what is refused)."""
+    if not body.strip():
+        raise ApiError(400, "body: malformed JSON: the request body is empty")
+    if json_depth(body, max_depth) > max_depth:
+        raise ApiError(400, f"body: JSON nested deeper than {max_depth} levels "
+                            "(arrays/objects) is refused")
+    try:
+        data = json.loads(body, parse_constant=_reject_constant)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise ApiError(400, f"body: malformed JSON: {err}") from None
+    except RecursionError:  # pragma: no cover - the depth scan refuses such bodies first
+        raise ApiError(400, f"body: JSON nested deeper than {max_depth} levels") from None
+    bad = non_finite_path(data)
+    if bad is not None:
+        raise ApiError(422, f"{bad}: must be a finite number (the value overflows a double)")
+    return data
+
+
+def require_json_content_type(request: Request) -> None:
+    """415 unless the body is declared `application/json` (a cross-origin page can send
+    `text/plain` without a CORS preflight, never `application/json`)."""
+    raw = request.headers.get("content-type")
+    media = (raw or "").split(";", 1)[0].strip().lower()
+    if media != "application/json":
+        got = f"{raw!r}" if raw else "none"
+        raise ApiError(415, f"content-type: must be application/json, got {got}")
+
+
+async def read_json(request: Request, limit: int, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """The request body as JSON: 415 unless declared application/json, 413 over `limit` bytes,
+    the rest as in `parse_json`."""
+    require_json_content_type(request)
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > limit:
+        raise ApiError(413, f"body: {declared} bytes exceed the limit of {limit} bytes")
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > limit:
+            raise ApiError(413, f"body: exceeds the limit of {limit} bytes")
+    return parse_json(bytes(body), max_depth)

@@ -1,0 +1,138 @@
+"""FastAPI dependencies of the routers: the process's settings, repository, executor and job
+runner (built once by `service.app.create_app` and kept on `app.state.services`), and the
+parsing helpers of query strings shared by several routes."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Annotated, Any
+
+from fastapi import Depends, Request
+
+from cmrt.settings import Settings
+from service.errors import ApiError
+from service.simulations import SimulationPool
+from store import Repository
+from worker.executors import GenerationExecutor
+from worker.runner import JobRunner
+
+
+@dataclass
+class Services:
+    """What the routes of one app share."""
+
+    settings: Settings
+    repo: Repository
+    executor: GenerationExecutor
+    runner: JobRunner
+    #: What-if clips (POST /simulations).
+    simulations: SimulationPool
+    #: False: jobs are stored but not driven (tests of the HTTP layer alone).
+    run_drivers: bool = True
+
+
+def services(request: Request) -> Services:
+    return request.app.state.services
+
+
+def get_settings_dep(s: Annotated[Services, Depends(services)]) -> Settings:
+    return s.settings
+
+
+def get_repo(s: Annotated[Services, Depends(services)]) -> Repository:
+    return s.repo
+
+
+def get_executor(s: Annotated[Services, Depends(services)]) -> GenerationExecutor:
+    return s.executor
+
+
+def get_runner(s: Annotated[Services, Depends(services)]) -> JobRunner:
+    return s.runner
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings_dep)]
+RepoDep = Annotated[Repository, Depends(get_repo)]
+ExecutorDep = Annotated[GenerationExecutor, Depends(get_executor)]
+RunnerDep = Annotated[JobRunner, Depends(get_runner)]
+ServicesDep = Annotated[Services, Depends(services)]
+
+
+def url_for(request: Request, name: str, **params: Any) -> str:
+    """The URL of a route: a path (`/jobs/<id>`) unless `CMRT_PUBLIC_URL` sets the base.
+
+    Never built from the request's Host header, which the client controls."""
+    path = str(request.app.url_path_for(name, **params))
+    base = request.app.state.services.settings.public_url
+    return f"{base.rstrip('/')}{path}" if base else path
+
+
+#: Largest `offset` of a listing and `after` of a generation poll: far below what an SQL
+#: integer holds (2^63 - 1), far above any real listing.
+MAX_OFFSET = 10**9
+
+
+def no_nul(request: Request) -> None:
+    """Refuse a NUL character in the path or the query (PostgreSQL cannot store or compare it;
+    no id, family or parameter name contains one)."""
+    if "\x00" in request.url.path:
+        raise ApiError(422, "path: the NUL character is not allowed")
+    for k, v in request.query_params.multi_items():
+        if "\x00" in k or "\x00" in v:
+            raise ApiError(422, f"{k.replace(chr(0), '')}: the NUL character is not allowed")
+
+
+#: Query keys of /cmrts and /cmrts/interpolate that are not task parameters.
+RESERVED_QUERY_KEYS = {"family", "tolerance", "limit", "offset", "extrapolate", "along"}
+#: Most task parameters accepted in one library query.
+MAX_QUERY_PARAMS = 16
+#: Longest name of a task parameter in a library query.
+MAX_PARAM_NAME = 64
+
+
+def finite_query(name: str, raw: str) -> float:
+    try:
+        v = float(raw)
+    except ValueError:
+        raise ApiError(422, f"{name}: {raw!r} is not a number") from None
+    if not math.isfinite(v):
+        raise ApiError(422, f"{name}: must be a finite number, got {raw!r}")
+    return v
+
+
+def library_query(request: Request) -> dict[str, float]:
+    """The task parameters of a library query: every query key not in RESERVED_QUERY_KEYS."""
+    params: dict[str, float] = {}
+    for k, v in request.query_params.multi_items():
+        if k in RESERVED_QUERY_KEYS:
+            continue
+        if len(k) > MAX_PARAM_NAME:
+            raise ApiError(422, f"parameter name {k[:MAX_PARAM_NAME]!r}...: longer than "
+                                f"{MAX_PARAM_NAME} characters")
+        if k in params:
+            raise ApiError(422, f"{k}: given more than once")
+        params[k] = finite_query(k, v)
+    if len(params) > MAX_QUERY_PARAMS:
+        raise ApiError(422, f"at most {MAX_QUERY_PARAMS} task parameters per query")
+    return params
+
+
+LibraryParams = Annotated[dict[str, float], Depends(library_query)]
+
+
+def task_parameters_doc(required: bool) -> dict[str, Any]:
+    """`openapi_extra=` documenting the free-form task-parameter query keys that
+    `library_query` reads (`?duration=0.4&force=250`)."""
+    return {"parameters": [{
+        "name": "task_parameters", "in": "query", "required": required,
+        "style": "form", "explode": True,
+        "description": "Any other query key is a task parameter with a finite number, e.g. "
+                       "`duration=0.4`, `force=250`.",
+        "schema": {"type": "object", "minProperties": 1 if required else 0,
+                   "maxProperties": MAX_QUERY_PARAMS,
+                   "propertyNames": {"minLength": 1, "maxLength": MAX_PARAM_NAME,
+                                     "pattern": "^[A-Za-z_][A-Za-z0-9_]*$",
+                                     "not": {"enum": sorted(RESERVED_QUERY_KEYS)}},
+                   "additionalProperties": {"type": "number"}},
+    }]}

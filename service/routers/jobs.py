@@ -1,0 +1,172 @@
+"""`/jobs`: submit a task spec for optimisation, follow it, cancel it."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import JSONResponse
+
+from optim.errors import BasisError
+from service import schemas
+from service.body import read_json
+from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
+from service.errors import ApiError
+from service.openapi import error_responses, json_body
+from service.views import generation_out, job_cmrt_id, job_out
+from sim.errors import SpecError
+from sim.spec import parse_spec
+from store import NotFound
+from store.records import JOB_STATUSES
+from worker import admission
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+#: Largest seed of a job (CMA-ES takes a 31-bit seed).
+MAX_SEED = 2**31 - 1
+_ENVELOPE_KEYS = {"spec", "seed", "basis"}
+JobStatus = Literal[JOB_STATUSES]  # type: ignore[valid-type]
+
+
+def _envelope(data: Any, seed: int | None, basis: str | None) -> tuple[Any, int | None, str | None]:
+    """Split `{"spec": ..., "seed": n, "basis": id}` (the body values win over the query's)."""
+    if not (isinstance(data, dict) and "spec" in data):
+        return data, seed, basis
+    extra = set(data) - _ENVELOPE_KEYS
+    if extra:
+        raise ApiError(422, f"{sorted(extra)[0]}: unknown field (allowed: spec, seed, basis)")
+    env_seed, env_basis = data.get("seed"), data.get("basis")
+    if env_seed is not None and (not isinstance(env_seed, int) or isinstance(env_seed, bool)
+                                 or not 0 <= env_seed <= MAX_SEED):
+        raise ApiError(422, "seed: must be an integer in [0, 2^31)")
+    if env_basis is not None and (not isinstance(env_basis, str) or len(env_basis) > 64):
+        raise ApiError(422, "basis: must be a basis id (string)")
+    return (data["spec"], env_seed if env_seed is not None else seed,
+            env_basis if env_basis is not None else basis)
+
+
+def _check_basis(repo: Any, basis: str, spec: Any) -> int:
+    """The basis' dimension k, once it is known to fit the spec (422 otherwise)."""
+    from worker.driver import basis_from_record
+
+    try:
+        b = basis_from_record(repo.get_basis(basis))
+    except NotFound:
+        raise ApiError(422, f"basis: {basis!r} does not exist") from None
+    try:
+        b.check_spec(spec)
+    except BasisError as err:
+        raise ApiError(422, f"basis: {err}") from None
+    return b.k
+
+
+@router.post("", status_code=202, response_model=schemas.JobAccepted,
+             summary="Submit a task spec for optimisation",
+             openapi_extra=json_body(
+                 schemas.TaskSpec, schemas.JobRequest, example=schemas.JOB_EXAMPLE,
+                 description="a task spec, or the envelope `{spec, seed, basis}`"),
+             responses=error_responses(400, 413, 415, 422))
+async def submit_job(
+    request: Request,
+    svc: ServicesDep,
+    seed: Annotated[int | None, Query(ge=0, le=MAX_SEED)] = None,
+    basis: Annotated[str | None, Query(max_length=64)] = None,
+) -> JSONResponse:
+    """Body: a task spec (as the CLI's YAML/JSON files), or `{"spec": {...}, "seed": n,
+    "basis": "<basis id>"}`. 202 with the job's URL in `Location`."""
+    data = await read_json(request, svc.settings.max_body_bytes)
+    data, seed, basis = _envelope(data, seed, basis)
+    try:
+        spec = parse_spec(data, "spec")
+    except SpecError as err:
+        raise ApiError(422, str(err)) from None
+    k = None if basis is None else _check_basis(svc.repo, basis, spec)
+    try:  # the job's budget against the server's ceiling (worker.admission)
+        budget = admission.check(spec, svc.settings, dimension=k)
+    except admission.BudgetExceeded as err:
+        raise ApiError(422, str(err)) from None
+    job = svc.repo.create_job(spec.model_dump(mode="json"), name=spec.name,
+                              family=spec.family_name, task=spec.task_type,
+                              seed=0 if seed is None else seed, basis_id=basis)
+    if svc.run_drivers:
+        svc.runner.submit(job.id)
+    url = url_for(request, "get_job", job_id=job.id)
+    return JSONResponse({"id": job.id, "url": url, "status": job.status,
+                         "budget": budget.to_dict()},
+                        status_code=202, headers={"Location": url})
+
+
+@router.get("", response_model=schemas.JobPage, summary="List jobs",
+            responses=error_responses(422))
+def list_jobs(
+    request: Request,
+    repo: RepoDep,
+    status: JobStatus | None = None,
+    family: Annotated[str | None, Query(max_length=100)] = None,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
+) -> dict[str, Any]:
+    items, total = repo.list_jobs(status=status, family=family, limit=limit, offset=offset)
+    return {"items": [job_out(j, request) for j in items], "total": total,
+            "limit": limit, "offset": offset}
+
+
+@router.get("/{job_id}", response_model=schemas.JobOut, summary="One job",
+            responses=error_responses(404))
+def get_job(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
+    job = repo.get_job(job_id)
+    out = job_out(job, request, job_cmrt_id(repo, job))
+    out["spec"] = job.spec
+    return out
+
+
+@router.get("/{job_id}/generations", response_model=schemas.GenerationPage,
+            summary="Generations after N (incremental polling)",
+            responses=error_responses(404))
+def job_generations(
+    job_id: str,
+    repo: RepoDep,
+    after: Annotated[int, Query(ge=-1, le=MAX_OFFSET,
+                                description="iteration; -1 for all")] = -1,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 1000,
+) -> dict[str, Any]:
+    job = repo.get_job(job_id)
+    gens = repo.generations(job_id, after=after)[:limit]
+    return {"job_id": job_id, "status": job.status, "after": after,
+            "last": gens[-1].iteration if gens else after,
+            "generations": [generation_out(g) for g in gens]}
+
+
+@router.get("/{job_id}/evaluations",
+            summary="Evaluation bookkeeping per generation (counts and attempts)",
+            responses=error_responses(404))
+def job_evaluations(job_id: str, repo: RepoDep) -> dict[str, Any]:
+    job = repo.get_job(job_id)
+    out = []
+    for g in [-1, *range(job.iterations + 1)]:
+        rows = repo.evaluations(job_id, g)
+        if not rows:
+            continue
+        out.append({
+            "generation": g,
+            "population": len(rows),
+            "done": sum(r.status == "done" for r in rows),
+            "pending": sum(r.status == "pending" for r in rows),
+            "failed": sum(r.status == "failed" for r in rows),
+            "attempts": sum(r.attempts for r in rows),
+            "repeated": sum(max(0, r.attempts - 1) for r in rows),
+        })
+    return {"job_id": job_id, "status": job.status, "generations": out}
+
+
+@router.post("/{job_id}/cancel", status_code=202, summary="Cancel a job",
+             responses=error_responses(404, 409))
+def cancel_job(job_id: str, request: Request, repo: RepoDep) -> JSONResponse:
+    job = repo.get_job(job_id)
+    if job.terminal:
+        raise ApiError(409, f"job {job_id} already finished ({job.status})")
+    job = repo.request_cancel(job_id)
+    return JSONResponse({"id": job.id, "status": job.status,
+                         "cancel_requested": job.cancel_requested,
+                         "url": url_for(request, "get_job", job_id=job.id)},
+                        status_code=202)

@@ -1,0 +1,153 @@
+"""The HTTP edge's protections, one ASGI middleware (`HttpEdge`) in front of the routes.
+
+- Methods: `OPTIONS <path>` answers 204 with every method the path has in `Allow`; any other
+  method the path lacks answers 405 with the same `Allow` (Starlette alone names only the
+  first route matching the path).
+- Authentication (only when `CMRT_API_TOKEN` is set): `Authorization: Bearer <token>` is
+  required on every state-changing request and, unless `CMRT_API_PUBLIC_READS=true`, on the
+  read-only data endpoints too (401 otherwise, compared in constant time). Always open: `/health`
+  (state only, for orchestrators), the page shells `/dashboard` and `/docs`, their `/static`
+  assets and `/openapi.json`; they hold no data, and the dashboard sends the token itself.
+- Cross-site requests: a state-changing request a browser marks `Sec-Fetch-Site: cross-site` is
+  refused (403); bodies must be `application/json` (415, `service.body`), which a cross-origin
+  page cannot send without a CORS preflight, and the API grants no CORS.
+- Headers on every response: `X-Content-Type-Options: nosniff`, `X-Frame-Options: DENY`,
+  `Referrer-Policy: no-referrer` and a Content-Security-Policy: `PAGE_CSP` on the dashboard,
+  `DOCS_CSP` on /docs (Swagger UI sets inline styles), `API_CSP` on everything else; each
+  forbids framing (`frame-ancestors 'none'`).
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from starlette.routing import Match, Mount
+
+from cmrt.settings import Settings
+
+Scope = dict[str, Any]
+Receive = Callable[[], Awaitable[dict[str, Any]]]
+Send = Callable[[dict[str, Any]], Awaitable[None]]
+ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
+
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+#: Paths served to anyone even with a token set (no data behind them).
+OPEN_PATHS = frozenset({"/health", "/dashboard", "/docs", "/openapi.json", "/"})
+OPEN_PREFIXES = ("/static/",)
+
+PAGE_CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; "
+            "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+DOCS_CSP = ("default-src 'none'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+            "img-src 'self' data:; font-src 'self' data:; connect-src 'self'; base-uri 'none'; "
+            "form-action 'none'; frame-ancestors 'none'")
+API_CSP = "default-src 'none'; frame-ancestors 'none'"
+_CSP_BY_PATH = {"/dashboard": PAGE_CSP, "/docs": DOCS_CSP}
+_COMMON_HEADERS = [(b"x-content-type-options", b"nosniff"), (b"x-frame-options", b"DENY"),
+                   (b"referrer-policy", b"no-referrer")]
+
+
+#: Methods probed when computing a path's `Allow` header.
+_METHODS = ("GET", "POST", "PUT", "PATCH", "DELETE")
+
+
+def allowed_methods(app: Any, scope: Scope) -> list[str]:
+    """Every method some route of `app` serves at the request's path (HEAD with GET), plus
+    OPTIONS; empty when no route has the path. Uses only the routes' public `matches`."""
+    methods: set[str] = set()
+    for route in app.routes:
+        if isinstance(route, Mount):  # static files: read-only
+            if route.matches(scope)[0] != Match.NONE:
+                methods |= {"GET", "HEAD"}
+            continue
+        methods |= {m for m in _METHODS
+                    if route.matches({**scope, "method": m})[0] == Match.FULL}
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods | {"OPTIONS"}) if methods else []
+
+
+def token_of(settings: Settings) -> str:
+    """The configured API token, "" when authentication is off."""
+    return settings.api_token.get_secret_value() if settings.api_token else ""
+
+
+def needs_token(settings: Settings, method: str, path: str) -> bool:
+    """Whether a request needs the bearer token (see the module docstring)."""
+    if not token_of(settings) or path in OPEN_PATHS or path.startswith(OPEN_PREFIXES):
+        return False
+    return method.upper() not in SAFE_METHODS or not settings.api_public_reads
+
+
+class HttpEdge:
+    """See the module docstring. `app` is the FastAPI app whose routes are consulted."""
+
+    def __init__(self, asgi: ASGIApp, *, app: Any, settings: Settings) -> None:
+        self.asgi = asgi
+        self.app = app
+        self.settings = settings
+        self.token = token_of(settings).encode()
+
+    def _token_ok(self, scope: Scope) -> bool:
+        for k, v in scope.get("headers", []):
+            if k == b"authorization":
+                scheme, _, given = v.partition(b" ")
+                return scheme.lower() == b"bearer" and hmac.compare_digest(given.strip(),
+                                                                           self.token)
+        return False
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.asgi(scope, receive, send)
+            return
+        path, method = scope["path"], scope["method"]
+        csp = _CSP_BY_PATH.get(path, API_CSP).encode()
+
+        async def send_with_headers(message: dict[str, Any]) -> None:
+            if message["type"] == "http.response.start":
+                names = {k.lower() for k, _ in message.get("headers", [])}
+                extra = [(k, v) for k, v in _COMMON_HEADERS if k not in names]
+                if b"content-security-policy" not in names:
+                    extra.append((b"content-security-policy", csp))
+                message = {**message, "headers": [*message.get("headers", []), *extra]}
+            await send(message)
+
+        methods = allowed_methods(self.app, scope)
+        if methods and method == "OPTIONS":
+            await _respond(send_with_headers, 204, None, {"allow": ", ".join(methods)})
+            return
+        if methods and method not in methods:
+            await _respond(send_with_headers, 405,
+                           f"method: {method} is not allowed on {path} "
+                           f"(allowed: {', '.join(methods)})", {"allow": ", ".join(methods)})
+            return
+        if method not in SAFE_METHODS and _header(scope, b"sec-fetch-site") == b"cross-site":
+            await _respond(send_with_headers, 403,
+                           "origin: cross-site requests that change state are refused")
+            return
+        if needs_token(self.settings, method, path) and not self._token_ok(scope):
+            await _respond(send_with_headers, 401,
+                           "authorization: a valid 'Bearer <CMRT_API_TOKEN>' header is required",
+                           {"www-authenticate": 'Bearer realm="cmrt"'})
+            return
+        await self.asgi(scope, receive, send_with_headers)
+
+
+def _header(scope: Scope, name: bytes) -> bytes | None:
+    for k, v in scope.get("headers", []):
+        if k == name:
+            return v.strip().lower()
+    return None
+
+
+async def _respond(send: Send, status: int, detail: str | None,
+                   headers: dict[str, str] | None = None) -> None:
+    body = b"" if detail is None else json.dumps({"detail": detail}).encode()
+    hdrs = [(k.encode(), v.encode()) for k, v in (headers or {}).items()]
+    if detail is not None:
+        hdrs.append((b"content-type", b"application/json"))
+    hdrs.append((b"content-length", str(len(body)).encode()))
+    await send({"type": "http.response.start", "status": status, "headers": hdrs})
+    await send({"type": "http.response.body", "body": body})

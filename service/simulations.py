@@ -1,0 +1,116 @@
+"""What-if simulations: one clip of a spec with a chosen CMRT, run in a process of the API's
+own small pool (`SimulationPool`) so a crash or a diverging ODE never takes the server down.
+
+`run_clip` is the picklable body that runs in the pool process; `SimulationPool` bounds how many
+clips run or wait at once (more: 503 with Retry-After) and how long one may take
+(`Settings.eval_time_limit`), and turns every way a clip can fail into a `failed` outcome with
+the reason: the simulation diverged (sim's DivergenceError), the process died, the time limit.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures as cf
+import logging
+import math
+import threading
+from typing import Any
+
+from sim.errors import SimError
+
+log = logging.getLogger("cmrt.service.simulations")
+
+#: Clips waiting for a pool process beyond the running ones before new requests get 503.
+MAX_WAITING = 4
+#: The outcome fields copied from sim's Evaluation.
+OUTCOME_FIELDS = ("objective", "fell", "fall_time", "fall_reason", "fall_direction",
+                  "task_success", "task_penalty", "error_norm", "max_abs_error", "sim_seconds",
+                  "cpu_seconds", "steps", "contact_steps")
+
+
+def _finite_or_none(v: Any) -> Any:
+    return None if isinstance(v, float) and not math.isfinite(v) else v
+
+
+def run_clip(spec_data: dict[str, Any], params: list[float] | None, traces: bool,
+             frames: bool) -> dict[str, Any]:
+    """Simulate one clip (in a pool process): `{"status": "done", ...outcome}` or
+    `{"status": "failed", "error": ...}` when the simulator refuses or diverges."""
+    from optim.objective import SimObjective
+
+    try:
+        ev = SimObjective(spec_data).evaluation(params, traces=traces or frames)
+    except SimError as err:  # DivergenceError and the simulator's other refusals
+        return {"status": "failed", "error": f"{type(err).__name__}: {err}"}
+    except (ArithmeticError, ValueError) as err:  # numbers gone non-finite past the checks
+        # (numpy's LinAlgError is a ValueError): the clip diverged between two checks
+        return {"status": "failed",
+                "error": f"the simulation diverged ({type(err).__name__}: {err})"}
+    out: dict[str, Any] = {"status": "done"}
+    out.update({k: _finite_or_none(getattr(ev, k)) for k in OUTCOME_FIELDS})
+    full = ev.to_dict(include_traces=True)
+    if traces:
+        out["traces"] = full.get("traces")
+    if frames:
+        out["frames"] = full.get("frames")
+    return out
+
+
+class SimulationBusyError(Exception):
+    """Every pool process is busy and the waiting line is full."""
+
+
+class SimulationPool:
+    """A process pool of `workers` processes for what-if clips (created on first use)."""
+
+    def __init__(self, workers: int = 1, time_limit: float = 600.0) -> None:
+        self.workers = workers
+        self.time_limit = time_limit
+        self._pool: cf.ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+        self._in_flight = 0
+
+    def _get(self) -> cf.ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                self._pool = cf.ProcessPoolExecutor(self.workers)
+            return self._pool
+
+    def _discard(self, pool: cf.ProcessPoolExecutor) -> None:
+        with self._lock:
+            if self._pool is pool:
+                self._pool = None
+        for p in list(getattr(pool, "_processes", {}).values()):
+            p.kill()  # a clip past its time limit (or a broken pool) is not waited for
+        pool.shutdown(wait=False, cancel_futures=True)
+
+    async def run(self, spec_data: dict[str, Any], params: list[float] | None, *, traces: bool,
+                  frames: bool) -> dict[str, Any]:
+        with self._lock:
+            if self._in_flight >= self.workers + MAX_WAITING:
+                raise SimulationBusyError
+            self._in_flight += 1
+        try:
+            pool = self._get()
+            fut = asyncio.get_running_loop().run_in_executor(
+                pool, run_clip, spec_data, params, traces, frames)
+            try:
+                return await asyncio.wait_for(fut, timeout=self.time_limit)
+            except TimeoutError:
+                self._discard(pool)
+                return {"status": "failed",
+                        "error": f"the clip ran past the time limit of {self.time_limit:g} s"}
+            except cf.process.BrokenProcessPool:
+                self._discard(pool)
+                log.error("simulation: the pool process died")
+                return {"status": "failed", "error": "the simulation process died (crash or "
+                                                     "out of memory)"}
+        finally:
+            with self._lock:
+                self._in_flight -= 1
+
+    def close(self) -> None:
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)

@@ -1,0 +1,71 @@
+"""`python tests/service/fuzz_server.py DATA_DIR PORT`: the API for the schemathesis run.
+
+On a fresh SQLite database in DATA_DIR it first fills the library the real way, through the
+HTTP API (three bend jobs optimised against the synthetic objective, and a PCA basis; with the
+bearer token of CMRT_API_TOKEN when the environment sets one), prints
+the ids as one JSON line, then serves the app under uvicorn on 127.0.0.1:PORT with the job
+drivers off, so the jobs the fuzzer submits are validated and stored but start no simulation.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import uvicorn
+from fastapi.testclient import TestClient
+
+sys.path.insert(0, str(Path(__file__).parent))
+from svc_helpers import bend_spec  # noqa: E402
+
+from cmrt.settings import Settings  # noqa: E402
+from optim.executors import SerialExecutor  # noqa: E402
+from optim.synthetic import Sphere  # noqa: E402
+from service.app import create_app  # noqa: E402
+from service.schemas import JOB_EXAMPLE  # noqa: E402
+from store import open_repository  # noqa: E402
+from worker.executors import LocalPoolExecutor  # noqa: E402
+
+TERMINAL = ("converged", "stopped", "failed", "cancelled")
+
+
+def _auth(settings: Settings) -> dict[str, str]:
+    token = settings.api_token.get_secret_value() if settings.api_token else ""
+    return {"Authorization": f"Bearer {token}"} if token else {}
+
+
+def seed_library(settings: Settings) -> dict[str, str]:
+    repo = open_repository(settings.database_url)
+    config = settings.model_copy(update={"poll_interval": 0.02, "scan_interval": 0.1})
+    executor = LocalPoolExecutor(config, pool=SerialExecutor(),
+                                 objective_factory=lambda spec: Sphere(centre=0.3))
+    with TestClient(create_app(config, repo=repo, executor=executor),
+                    headers=_auth(settings)) as c:
+        jobs = [c.post("/jobs", json=bend_spec(f"bend_{i}", d)).json()["id"]
+                for i, d in enumerate((0.3, 0.4, 0.5))]
+        deadline = time.monotonic() + 60
+        while any(c.get(f"/jobs/{j}").json()["status"] not in TERMINAL for j in jobs):
+            if time.monotonic() > deadline:
+                raise SystemExit("fuzz_server: the seed jobs did not finish in 60 s")
+            time.sleep(0.05)
+        basis = c.post("/bases", json={"family": "bend", "k": 2}).json()["id"]
+        cmrt = c.get(f"/jobs/{jobs[0]}").json()["cmrt_id"]
+    return {"job_id": jobs[0], "cmrt_id": cmrt, "basis_id": basis}
+
+
+def main(data_dir: str, port: int) -> None:
+    settings = Settings(data_dir=Path(data_dir), database_url=f"sqlite:///{data_dir}/fuzz.db",
+                        workers=1)
+    ids = seed_library(settings)
+    app = create_app(settings, run_drivers=False)
+    # a job left queued (no driver runs here), for the cancel operation
+    ids["queued_job_id"] = TestClient(app, headers=_auth(settings)).post(
+        "/jobs", json=JOB_EXAMPLE).json()["id"]
+    print(json.dumps(ids), flush=True)
+    uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], int(sys.argv[2]))

@@ -1,0 +1,127 @@
+"""A bounded schemathesis run against the served OpenAPI document (part of `make test`).
+
+The app runs under uvicorn on a fresh SQLite database (tests/service/fuzz_server.py: a small
+library built first, then the job drivers off, so fuzzed jobs are stored but start nothing).
+schemathesis runs every check (`--checks all`) in its coverage, fuzzing and stateful phases
+(and the examples phase on the documented examples) with a fixed seed: no server error, no
+response that breaks the document. It runs twice: on the open API, and on the API closed by
+CMRT_API_TOKEN (reads closed too) with the token sent, where schemathesis' `ignored_auth` check
+also sends each operation without it and expects a 401. The figures are printed (pytest -s)
+and written to `schemathesis-figures.json` in the test's temporary folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+HERE = Path(__file__).parent
+#: Test cases per operation and phase: bounds the run (about 40 s on this machine).
+MAX_EXAMPLES = 100
+#: The run is killed (and the test fails) past this.
+MAX_SECONDS = 400
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _schemathesis() -> list[str]:
+    exe = Path(sys.executable).with_name("schemathesis")
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which("schemathesis")
+    if not found:
+        pytest.fail("schemathesis is not installed (it is in the dev extras: make setup)")
+    return [found]
+
+
+#: The bearer token of the closed-API run.
+TOKEN = "fuzz-token"
+
+
+@pytest.fixture(params=["open", "token"])
+def served(request, tmp_path):
+    """The served app: open, or closed by CMRT_API_TOKEN (reads too); yields (url, ids,
+    extra schemathesis arguments)."""
+    port = _free_port()
+    log = (tmp_path / "server.log").open("w")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
+    extra: list[str] = []
+    if request.param == "token":
+        env["CMRT_API_TOKEN"] = TOKEN
+        extra = ["-H", f"Authorization: Bearer {TOKEN}"]
+    proc = subprocess.Popen(
+        [sys.executable, str(HERE / "fuzz_server.py"), str(tmp_path), str(port)],
+        stdout=subprocess.PIPE, stderr=log, text=True, env=env)
+    try:
+        line = proc.stdout.readline()
+        assert line, f"fuzz_server.py exited: {(tmp_path / 'server.log').read_text()[-2000:]}"
+        ids = json.loads(line)
+        url = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                if httpx.get(url + "/health", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            assert time.monotonic() < deadline, "the server did not answer /health in 30 s"
+            time.sleep(0.2)
+        yield url, ids, extra
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+
+
+def test_schemathesis_all_checks(served, tmp_path):
+    url, ids, extra = served
+    config = (HERE / "schemathesis.toml.in").read_text()
+    for k, v in ids.items():
+        config = config.replace(f"@{k}@", v)
+    (tmp_path / "schemathesis.toml").write_text(config)
+    report = tmp_path / "report.json"
+    cmd = [*_schemathesis(), "--config-file", str(tmp_path / "schemathesis.toml"), "run",
+           f"{url}/openapi.json", "--checks", "all", "--max-examples", str(MAX_EXAMPLES),
+           *extra, "--report", "json", "--report-json-path", str(report)]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=MAX_SECONDS,
+                         cwd=tmp_path)
+    assert report.exists(), run.stdout[-4000:] + run.stderr[-2000:]
+    r = json.loads(report.read_text())
+    accepted = {op: sum(p["accepted"] for p in phases.values())
+                for op, phases in r["valid_rates"].items()}
+    figures = {
+        "operations": r["operations"],
+        "test_cases": r["test_cases"],
+        "phases": {k: v["status"] for k, v in r["phases"].items()},
+        "failures": len(r["failures"]),
+        "errors": len(r["errors"]),
+        "running_time_s": round(r["running_time"], 1),
+        "accepted_positive_cases": accepted,
+        "warnings": {k: v for k, v in r["warnings"].items() if v},
+    }
+    (tmp_path / "schemathesis-figures.json").write_text(json.dumps(figures, indent=1))
+    print("schemathesis figures:", json.dumps(figures, indent=1))
+    assert run.returncode == 0 and not r["failures"] and not r["errors"], run.stdout[-6000:]
+    assert r["operations"]["tested"] == r["operations"]["selected"] == 14
+    assert r["test_cases"]["generated"] > 1000 and r["test_cases"]["with_failures"] == 0
+    assert all(r["phases"][p]["status"] == "success" for p in ("coverage", "fuzzing",
+                                                                "stateful"))
+    assert accepted["POST /jobs"] > 0, "the documented example spec was not accepted"
+    assert accepted["POST /jobs/{job_id}/cancel"] > 0, "the queued job was not cancelled"
