@@ -19,7 +19,8 @@ Contracts:
     CPU within a poll.
   * Slot processes ignore SIGINT and SIGTERM (a signal to the whole process group, Ctrl-C or
     `kill -- -PGID`, stops the parent, which ends its slots; it never looks like a crash) and
-    exit by themselves once the parent is gone (`optim.executors`' parent watch).
+    exit by themselves within PARENT_WATCH_S once the server process is gone (killed with
+    SIGKILL, say); the fork server then exits too.
 """
 
 from __future__ import annotations
@@ -41,11 +42,7 @@ from typing import Any
 import numpy as np
 
 from optim.errors import EvaluationError
-from optim.executors import (
-    _exit_with_parent,
-    evaluate_one,
-    kill_process_pool,
-)
+from optim.executors import PARENT_WATCH_S, evaluate_one, kill_process_pool
 from optim.outcome import EvalOutcome
 
 log = logging.getLogger(__name__)
@@ -65,12 +62,34 @@ def _ping() -> int:
     return os.getpid()
 
 
-def _slot_init() -> None:
-    """Slot-process initializer: ignore group signals; exit once the parent is gone. The
-    parent is the server (spawn) or the fork server, which exits when the server does."""
+def _alive(pid: int) -> bool:
+    """The process exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except FileNotFoundError:
+        return False
+    except OSError:  # no /proc: fall back to a signal 0
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+
+
+def _slot_init(server_pid: int) -> None:
+    """Slot-process initializer: ignore group signals; exit once the server is gone (the
+    slot's parent is the fork server, which outlives a server killed with SIGKILL while its
+    slots live, so the watch is on the server itself)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _exit_with_parent(os.getppid())
+
+    def watch() -> None:
+        while _alive(server_pid):
+            time.sleep(PARENT_WATCH_S)
+        os._exit(1)  # nobody is left to want the result
+
+    threading.Thread(target=watch, name="cmrt-server-watch", daemon=True).start()
 
 
 @dataclass(eq=False)
@@ -99,7 +118,7 @@ class _Slot:
 
     def _start(self) -> None:
         self.executor = cf.ProcessPoolExecutor(max_workers=1, mp_context=self._ctx,
-                                               initializer=_slot_init)
+                                               initializer=_slot_init, initargs=(os.getpid(),))
 
     def kill(self, *, restart: bool = False) -> None:
         """Kill the slot's process; with `restart` start its successor at once (its imports

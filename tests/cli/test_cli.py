@@ -188,3 +188,22 @@ def test_bench_measures_each_task_world_with_its_props(capsys):
         assert r["raw_ode_cpu_per_sim_second"] > 0.0
         assert r["controller_over_raw_ode"] == pytest.approx(
             r["controller_cpu_per_sim_second"] / r["raw_ode_cpu_per_sim_second"])
+
+
+@pytest.mark.parametrize("command", ["simulate", "optimize", "bench", "pca", "interpolate",
+                                     "serve", "worker"])
+def test_every_subcommand_has_help(command, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main([command, "--help"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: cmrt {command}")
+
+
+def test_serve_and_worker_take_the_readme_s_options():
+    from cli.main import build_parser
+
+    a = build_parser().parse_args(["serve", "--host", "0.0.0.0", "--port", "8000"])
+    assert (a.host, a.port) == ("0.0.0.0", 8000)
+    assert build_parser().parse_args(["worker", "--concurrency", "2"]).concurrency == 2
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["serve", "--port", "0"])

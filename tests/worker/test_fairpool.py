@@ -81,3 +81,41 @@ def test_process_death_and_time_limit_are_per_candidate(tmp_path):
         assert got["ok"].objective == 3.0  # the slot was restarted
     finally:
         p.close()
+
+
+_OWNER = """
+import os, sys, time
+import numpy as np
+from optim.synthetic import Sleep
+from worker.fairpool import FairPool
+pool = FairPool(2)
+pool.run("j", Sleep(0.0), [np.zeros(2)] * 2, lambda: None, lambda i, o: None)
+slots = [p.pid for s in pool._slots for p in s.executor._processes.values()]
+print(" ".join(map(str, slots)), flush=True)
+time.sleep(600)
+"""
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0] == b"Z"
+    except FileNotFoundError:
+        return True
+
+
+def test_slots_end_when_their_server_is_killed_with_sigkill():
+    import subprocess
+    import sys
+
+    owner = subprocess.Popen([sys.executable, "-c", _OWNER], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in owner.stdout.readline().split()]
+        assert len(pids) == 2 and not any(_gone(p) for p in pids)
+    finally:
+        owner.kill()  # SIGKILL: no clean-up runs in the server
+        owner.wait(10)
+    t0 = time.monotonic()
+    while not all(_gone(p) for p in pids):
+        assert time.monotonic() - t0 < 60, f"slot processes {pids} outlived their server"
+        time.sleep(0.1)
