@@ -35,3 +35,15 @@ def local_executor(config):
                            objective_factory=lambda spec: Sphere(centre=0.3))
     yield ex
     ex.close()
+
+
+@pytest.fixture
+def http_client(config, repo, local_executor):
+    """The app with the job drivers off (jobs are stored, not run): HTTP-layer tests."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    with TestClient(create_app(config, repo=repo, executor=local_executor,
+                               run_drivers=False)) as c:
+        yield c

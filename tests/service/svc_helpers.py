@@ -2,6 +2,22 @@
 
 from __future__ import annotations
 
+import time
+
+TERMINAL = ("converged", "stopped", "failed", "cancelled")
+
+
+def wait_job(client, job_id: str, timeout: float = 30.0) -> dict:
+    """The job's body once it is terminal (polling GET /jobs/{id})."""
+    t0 = time.monotonic()
+    j: dict = {}
+    while time.monotonic() - t0 < timeout:
+        j = client.get(f"/jobs/{job_id}").json()
+        if j["status"] in TERMINAL:
+            return j
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not finish: {j}")
+
 
 def bend_spec(name: str = "bend_a", duration: float = 0.3, **optimize) -> dict:
     opt = {"popsize": 4, "max_evaluations": 12, "min_evaluations": 0}

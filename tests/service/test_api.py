@@ -7,7 +7,7 @@ import time
 
 import pytest
 from fastapi.testclient import TestClient
-from svc_helpers import bend_spec
+from svc_helpers import bend_spec, wait_job
 
 from service.app import create_app
 
@@ -17,16 +17,6 @@ def client(settings, config, repo, local_executor):
     app = create_app(config, repo=repo, executor=local_executor)
     with TestClient(app) as c:
         yield c
-
-
-def _wait(client, job_id, timeout=30.0):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        j = client.get(f"/jobs/{job_id}").json()
-        if j["status"] in ("converged", "stopped", "failed", "cancelled"):
-            return j
-        time.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not finish: {j}")
 
 
 def _submit(client, spec, **kw):
@@ -39,7 +29,7 @@ def _submit(client, spec, **kw):
 def test_job_lifecycle_library_and_interpolation(client):
     a = _submit(client, bend_spec("bend_a", 0.3), seed=1)
     b = _submit(client, bend_spec("bend_b", 0.5))
-    ja, jb = _wait(client, a), _wait(client, b)
+    ja, jb = wait_job(client, a), wait_job(client, b)
     assert ja["status"] == "stopped" and ja["stop_rule"] == "max_evaluations"
     assert ja["cmrt_id"] and jb["cmrt_id"] and ja["seed"] == 1
 
@@ -79,14 +69,14 @@ def test_job_lifecycle_library_and_interpolation(client):
 def test_basis_and_reduced_space_job(client):
     ids = [_submit(client, bend_spec(f"bend_{i}", d)) for i, d in enumerate((0.3, 0.4, 0.5))]
     for i in ids:
-        _wait(client, i)
+        wait_job(client, i)
     r = client.post("/bases", json={"family": "bend", "k": 2})
     assert r.status_code == 201, r.text
     basis = r.json()
     assert basis["k"] == 2 and len(basis["members"]) == 3
     assert client.get(f"/bases/{basis['id']}").json()["id"] == basis["id"]
     j = _submit(client, bend_spec("bend_pca", 0.35), basis=basis["id"])
-    job = _wait(client, j)
+    job = wait_job(client, j)
     assert job["status"] == "stopped" and job["basis_id"] == basis["id"]
     assert len(job["best_params"]) == 8  # full spline params, searched in 2 dimensions
     assert client.post("/bases", json={"family": "nope", "k": 2}).status_code == 422
@@ -100,7 +90,7 @@ def test_cancel(client):
     time.sleep(0.3)
     r = client.post(f"/jobs/{j}/cancel")
     assert r.status_code == 202
-    assert _wait(client, j)["status"] == "cancelled"
+    assert wait_job(client, j)["status"] == "cancelled"
     assert client.post(f"/jobs/{j}/cancel").status_code == 409
     assert client.get("/cmrts", params={"family": "bend"}).json()["total"] == 0
     assert client.post("/jobs/nope/cancel").status_code == 404

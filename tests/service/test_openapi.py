@@ -5,19 +5,15 @@ from __future__ import annotations
 import json
 
 import pytest
-from fastapi.testclient import TestClient
 
-from service.app import create_app
 from service.openapi import REF_PREFIX
 from service.schemas import BASIS_EXAMPLE, JOB_EXAMPLE
 from sim.spec import parse_spec
 
 
 @pytest.fixture
-def client(settings, config, repo, local_executor):
-    app = create_app(config, repo=repo, executor=local_executor, run_drivers=False)
-    with TestClient(app) as c:
-        yield c
+def client(http_client):
+    return http_client
 
 
 def _refs(node):

@@ -6,20 +6,16 @@ from __future__ import annotations
 import json
 
 import pytest
-from fastapi.testclient import TestClient
 from svc_helpers import bend_spec
 
-from service.app import create_app
 from service.body import MAX_JSON_DEPTH, json_depth
 
 JSON = {"content-type": "application/json"}
 
 
 @pytest.fixture
-def client(settings, config, repo, local_executor):
-    app = create_app(config, repo=repo, executor=local_executor, run_drivers=False)
-    with TestClient(app) as c:
-        yield c
+def client(http_client):
+    return http_client
 
 
 def _nothing_stored(client):
