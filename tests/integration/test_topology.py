@@ -11,6 +11,7 @@ import json
 import os
 import re
 import subprocess
+import sys
 import time
 
 import pytest
@@ -74,9 +75,16 @@ def test_workers_run_on_a_host_of_their_own(topology):
                            capture_output=True, text=True, check=True).stdout
     peers = {ln.split()[-1] for ln in links.splitlines()}
     assert f"{host.host_addr}:{topology.redis_port}" in peers, links
-    if any("succeeded in" in p.log.read_text(errors="replace") for p in workers):
-        # a worker that ran a task keeps its database connection (through the forwarder)
-        assert f"{host.host_addr}:{topology.pg_link_port}" in peers, links
+    # PostgreSQL across the link, with the workers' own URL, from inside the worker host (a
+    # pool process's kept connection is no proof: a cancel before this test SIGKILLs the pool
+    # process running the cancelled job's candidate, and its successor has not connected yet).
+    url = workers[0].env["CMRT_DATABASE_URL"].replace("postgresql+psycopg://", "postgresql://")
+    probe = ("import sys, psycopg; c = psycopg.connect(sys.argv[1], connect_timeout=10); "
+             "print(c.execute('select inet_client_addr()').fetchone()[0])")
+    seen = subprocess.run(host.wrap([sys.executable, "-c", probe, url]), capture_output=True,
+                          text=True, timeout=60, check=True).stdout.strip()
+    # the forwarder's own connection arrives from loopback: the database sees the root host
+    assert seen in ("127.0.0.1", "::1"), seen
 
 
 def _wait_mid_generation(api, job_id, generation, timeout=90):
