@@ -13,9 +13,11 @@ import asyncio
 import concurrent.futures as cf
 import logging
 import math
+import os
 import threading
 from typing import Any
 
+from optim.executors import _exit_with_parent
 from sim.errors import SimError
 
 log = logging.getLogger("cmrt.service.simulations")
@@ -72,8 +74,9 @@ class SimulationPool:
 
     def _get(self) -> cf.ProcessPoolExecutor:
         with self._lock:
-            if self._pool is None:
-                self._pool = cf.ProcessPoolExecutor(self.workers)
+            if self._pool is None:  # workers end with this process, even when it is killed
+                self._pool = cf.ProcessPoolExecutor(
+                    self.workers, initializer=_exit_with_parent, initargs=(os.getpid(),))
             return self._pool
 
     def _discard(self, pool: cf.ProcessPoolExecutor) -> None:

@@ -12,9 +12,11 @@ and written to `schemathesis-figures.json` in the test's temporary folder.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -64,7 +66,8 @@ def served(request, tmp_path):
         extra = ["-H", f"Authorization: Bearer {TOKEN}"]
     proc = subprocess.Popen(
         [sys.executable, str(HERE / "fuzz_server.py"), str(tmp_path), str(port)],
-        stdout=subprocess.PIPE, stderr=log, text=True, env=env)
+        stdout=subprocess.PIPE, stderr=log, text=True, env=env,
+        start_new_session=True)  # its own process group: every process it forks ends with it
     try:
         line = proc.stdout.readline()
         assert line, f"fuzz_server.py exited: {(tmp_path / 'server.log').read_text()[-2000:]}"
@@ -81,12 +84,12 @@ def served(request, tmp_path):
             time.sleep(0.2)
         yield url, ids, extra
     finally:
-        proc.terminate()
-        try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
             proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        with contextlib.suppress(ProcessLookupError):  # pool processes it left behind
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
         log.close()
 
 

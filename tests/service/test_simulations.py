@@ -8,6 +8,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
@@ -138,3 +139,30 @@ def test_diverging_clip_is_a_failed_status(client):
     assert out["error"].startswith("the simulation diverged (LinAlgError: "), out["error"]
     assert client.post("/simulations", json={"spec": QUIET, "traces": False}).json()[
         "status"] == "done"
+
+
+def test_pool_processes_end_with_a_killed_api(tmp_path):
+    """A SIGKILLed API leaves no simulation process behind (they watch their parent)."""
+    import subprocess
+    import sys
+
+    code = ("import asyncio, os, sys, time\n"
+            "from service.simulations import SimulationPool\n"
+            "pool = SimulationPool(1)\n"
+            "spec = {'name': 'q', 'family': 's', 'task': {'type': 'quiet_stance'},\n"
+            "        'clip': {'preparation': 0.2, 'duration': 0.3, 'decay': 0.2}}\n"
+            "asyncio.run(pool.run(spec, None, traces=False, frames=False))\n"
+            "print(*pool._pool._processes, flush=True)\n"
+            "time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    children = [int(p) for p in proc.stdout.readline().split()]
+    assert children
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 10
+    alive = children
+    while alive and time.monotonic() < deadline:
+        alive = [p for p in alive if os.path.exists(f"/proc/{p}")
+                 and Path(f"/proc/{p}/stat").read_text().split()[2] != "Z"]
+        time.sleep(0.1)
+    assert not alive, f"simulation processes outlived their API: {alive}"
