@@ -23,6 +23,9 @@ import yaml
 from sim.errors import CharacterError
 
 DATA_DIR = Path(__file__).parent / "data"
+#: The character a spec without `character.model` gets: named by the data folder (a data
+#: choice, like the characters themselves), read once at import.
+DEFAULT_CHARACTER = (DATA_DIR / "default_character").read_text().strip()
 ROOT_DOF = 3
 
 
@@ -284,7 +287,7 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
 
 
 @lru_cache(maxsize=16)
-def load_character(model: str = "humanoid", height: float | None = None,
+def load_character(model: str = DEFAULT_CHARACTER, height: float | None = None,
                    mass: float | None = None) -> Character:
     """Load `sim/data/<model>.yaml` (or a path), scaled to `height` m and `mass` kg."""
     path = Path(model) if model.endswith((".yaml", ".yml")) else DATA_DIR / f"{model}.yaml"

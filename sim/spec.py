@@ -28,7 +28,7 @@ from typing import Annotated, Any, Union
 import yaml
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from sim.character import DATA_DIR, Character, load_character
+from sim.character import DATA_DIR, DEFAULT_CHARACTER, Character, load_character
 from sim.errors import CharacterError, SpecError
 from sim.specbase import StrictModel
 from sim.tasks import TASK_TYPES
@@ -41,7 +41,6 @@ GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l"
 MAX_CLIP_SECONDS = 20.0
 #: Narrowest room (m) the CoP box may leave on each side of the support centre.
 MIN_COP_BOX_WIDTH = 0.005
-DEFAULT_CHARACTER = "humanoid"
 
 _Strict = StrictModel
 #: The `task` field: one of the registered task types, chosen by its `type`.

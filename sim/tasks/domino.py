@@ -31,19 +31,17 @@ from sim.trajectory import MotionDef
 #: Name of the block prop in the physics (and in the replay frames).
 BLOCK = "block"
 MAX_BLOCK_MASS_KG = 1000.0
-#: Default arm poses (degrees from the standing pose): hands before the chest, then stretched.
-DEFAULT_READY = {"shoulder_r": 30.0, "shoulder_l": 30.0, "elbow_r": 80.0, "elbow_l": 80.0}
-DEFAULT_PUSH = {"shoulder_r": 80.0, "shoulder_l": 80.0, "elbow_r": -5.0, "elbow_l": -5.0}
 
 
 class DominoConfig(TaskConfig):
-    """`task: {type: domino, mass: kg, width?: m, height?: m, distance?: m, friction?,
-    ready?: {joint: deg}, push?: {joint: deg}, ready_time?: s}`.
+    """`task: {type: domino, mass: kg, ready: {joint: deg}, push: {joint: deg}, width?: m,
+    height?: m, distance?: m, friction?, ready_time?: s}`.
 
     width is the block's thickness along x, height its height (m); distance is the x of its
     near face (m, the ankles are at x = 0); friction its coefficient against the ground and the
     hands. The arms reach `ready` over [0, ready_time] and `push` over the task window (joint
-    angles in degrees relative to the standing pose).
+    angles in degrees relative to the standing pose). The poses have no defaults: joint names
+    are the character's, so they come from the spec (examples/domino.yaml has the humanoid's).
     """
 
     type: Literal["domino"] = "domino"
@@ -52,8 +50,8 @@ class DominoConfig(TaskConfig):
     height: Annotated[float, Field(gt=0.1, le=5.0)] = 1.6
     distance: Annotated[float, Field(ge=0.0, le=3.0)] = 0.5
     friction: Annotated[float, Field(gt=0.0, le=5.0)] = 0.8
-    ready: dict[str, float] = DEFAULT_READY
-    push: dict[str, float] = DEFAULT_PUSH
+    ready: dict[str, float]
+    push: dict[str, float]
     ready_time: Annotated[float, Field(gt=0.0, le=10.0)] = 0.6
 
     @model_validator(mode="after")
