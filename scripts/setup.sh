@@ -13,6 +13,14 @@ if ! compgen -G "$ODE_SO_GLOB" >/dev/null; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-pyode libode-dev >/dev/null
 fi
 
+# The browser tests drive Debian's Chromium through playwright (a browser download fails here).
+if [ ! -x /usr/bin/chromium ]; then
+    echo "setup: installing Debian's chromium"
+    SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
+fi
+
 if [ ! -x .venv/bin/python ]; then
     echo "setup: creating .venv"
     "$PY" -m venv .venv
