@@ -39,6 +39,9 @@ GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l"
                                "b_p", "cop_box")
 
 MAX_CLIP_SECONDS = 20.0
+#: The task window is at least one simulation step (sim.physics.DT, s): a shorter one is no
+#: motion the simulator can make (a pose change in 5e-324 s made the controller non-finite).
+MIN_TASK_SECONDS = 0.001
 #: Narrowest room (m) the CoP box may leave on each side of the support centre.
 MIN_COP_BOX_WIDTH = 0.005
 
@@ -72,7 +75,7 @@ class Clip(_Strict):
     """Clip timing in seconds: preparation, then the task window, then decay."""
 
     preparation: Annotated[float, Field(ge=0.0, le=10.0)] = 1.0
-    duration: Annotated[float, Field(gt=0.0, le=10.0)]
+    duration: Annotated[float, Field(ge=MIN_TASK_SECONDS, le=10.0)]
     decay: Annotated[float, Field(ge=0.0, le=10.0)] = 1.0
 
     @property

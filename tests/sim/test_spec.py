@@ -60,7 +60,12 @@ def _joint_out_of_range(d):
 
 def _negative_duration(d):
     d["clip"]["duration"] = -0.5
-    return "slow_bend", "clip.duration", "greater than 0"
+    return "slow_bend", "clip.duration", "greater than or equal to 0.001"
+
+
+def _duration_under_one_step(d):
+    d["clip"]["duration"] = 5e-324
+    return "slow_bend", "clip.duration", "greater than or equal to 0.001"
 
 
 def _negative_decay(d):
@@ -205,7 +210,8 @@ def _unknown_task(d):
 
 
 BAD_SPECS = [
-    _unknown_joint, _joint_out_of_range, _negative_duration, _negative_decay, _clip_too_long,
+    _unknown_joint, _joint_out_of_range, _negative_duration, _duration_under_one_step,
+    _negative_decay, _clip_too_long,
     _unknown_top_field, _unknown_nested_field, _missing_push_force, _push_field_on_bend,
     _push_past_clip_end, _push_duration_past_end, _negative_force, _push_unknown_body,
     _task_without_type, _string_duration, _boolean_duration, _infinite_threshold, _nan_force,
