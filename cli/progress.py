@@ -45,17 +45,19 @@ class ProgressDisplay:
             from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
             from rich.progress import Progress as RichProgress
 
+            # Fits 80 columns: name, generation, bar, evaluations of the cap, best, sigma,
+            # elapsed (the job's, by the server's clock, not the time since this started).
             self._rich = RichProgress(
                 TextColumn("[bold]{task.description}"),
-                TextColumn("gen {task.fields[generation]:>4}"),
-                BarColumn(),
+                TextColumn("gen {task.fields[generation]:>3}"),
+                BarColumn(bar_width=12),
                 MofNCompleteColumn(),
-                TextColumn("evals  best {task.fields[best]:>9}  sigma {task.fields[sigma]:>7}"),
-                TextColumn("{task.fields[elapsed]:>8} s  {task.fields[status]}"),
+                TextColumn("evals  best {task.fields[best]}  sigma {task.fields[sigma]}"),
+                TextColumn("{task.fields[elapsed]:>6} s"),
                 console=Console(file=self.stream), refresh_per_second=4)
             self._rich.__enter__()
             self._task = self._rich.add_task(self.title, total=None, generation="-",
-                                             best="-", sigma="-", elapsed="0.0", status="")
+                                             best="-", sigma="-", elapsed="0.0")
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
@@ -65,11 +67,13 @@ class ProgressDisplay:
 
     def __call__(self, p: Progress) -> None:
         if self._rich is not None:
+            title = self.title if p.status == "running" else f"{self.title} {p.status}"
             self._rich.update(
-                self._task, completed=p.evaluations, total=p.max_evaluations,
+                self._task, description=title, completed=p.evaluations,
+                total=p.max_evaluations,
                 generation="-" if p.generation is None else str(p.generation),
                 best=_num(p.best, ".4f"), sigma=_num(p.sigma, ".4f"),
-                elapsed=f"{p.elapsed:.1f}", status=p.status)
+                elapsed=f"{p.elapsed:.1f}")
             return
         lines = p.generation_lines() if p.new else []
         if not lines and p.generation is not None and p.generation != self._printed:

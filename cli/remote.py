@@ -93,16 +93,17 @@ def _summary(client: Any, d: dict[str, Any]) -> list[str]:
         lines.append(f"error: {d['error']}")
     if d.get("cmrt_id"):
         e = client.cmrt(d["cmrt_id"])
-        flat = e.get("objective_without")
-        change = ""
-        if isinstance(flat, float) and flat > 0:
-            change = f", {100.0 * (flat - e['objective']) / flat:.1f} % below the flat spline"
-        lines.append(f"best {_f(e['objective'])} ({'falls' if e['fell'] else 'stands'}); "
-                     f"flat spline {_f(flat)} "
-                     f"({'falls' if e.get('fell_without') else 'stands'}){change}")
-        lines.append(f"library CMRT {e['id']} (winner: {e['winner']})")
+        flat, best = e.get("objective_without"), d.get("best_objective")
+        if e["winner"] == "search" and isinstance(flat, float) and flat > 0:
+            verdict = f"{100.0 * (flat - e['objective']) / flat:.1f} % below the flat spline"
+        else:
+            verdict = "the flat spline is better: no anticipation learned"
+        lines.append(f"best candidate {_f(best)}; flat spline {_f(flat)} "
+                     f"({'falls' if e.get('fell_without') else 'stands'}): {verdict}")
+        lines.append(f"library CMRT {e['id']} ({e['winner']}): objective {_f(e['objective'])}"
+                     f", {'falls' if e['fell'] else 'stands'}")
     elif d.get("best_objective") is not None:
-        lines.append(f"best {_f(d['best_objective'])}")
+        lines.append(f"best candidate {_f(d['best_objective'])}")
     return lines
 
 
@@ -139,7 +140,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
             return 0
         if not args.json:
             print(f"job {job.id} submitted: {job.url}", flush=True)
-        return _follow(client, job, job.id[:8], args.json)
+        return _follow(client, job, str(job.data.get("name") or job.id[:8])[:16], args.json)
 
 
 @_guard
@@ -147,7 +148,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
     """Follow a job with a progress bar until it ends; then its result."""
     with _client(args) as client:
         job = client.job(args.job)
-        return _follow(client, job, f"{job.data['name']} {job.id[:8]}", args.json)
+        return _follow(client, job, str(job.data["name"])[:16], args.json)
 
 
 @_guard
@@ -158,22 +159,22 @@ def cmd_jobs(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps([j.data for j in jobs]))
             return 0
-        print(f"{'id':<32}  {'status':<9}  {'family':<10}  {'name':<20}  {'best':>9}  "
+        print(f"{'id':<36}  {'status':<9}  {'family':<10}  {'name':<20}  {'best':>9}  "
               f"{'evals':>5}  {'elapsed s':>9}")
         for j in jobs:
             d = j.data
-            print(f"{d['id']:<32}  {d['status']:<9}  {d['family'][:10]:<10}  "
+            print(f"{d['id']:<36}  {d['status']:<9}  {d['family'][:10]:<10}  "
                   f"{d['name'][:20]:<20}  {_f(d['best_objective']):>9}  {d['evaluations']:>5}  "
                   f"{_elapsed(d):>9}")
         return 0
 
 
 def _cmrt_rows(items: list[dict[str, Any]]) -> list[str]:
-    rows = [f"{'id':<32}  {'family':<10}  {'task parameters':<28}  {'objective':>9}  "
+    rows = [f"{'id':<36}  {'family':<10}  {'task parameters':<28}  {'objective':>9}  "
             f"{'flat':>9}  winner"]
     for e in items:
         params = ", ".join(f"{k}={v:g}" for k, v in sorted(e["task_parameters"].items()))
-        rows.append(f"{e['id']:<32}  {e['family'][:10]:<10}  {params[:28]:<28}  "
+        rows.append(f"{e['id']:<36}  {e['family'][:10]:<10}  {params[:28]:<28}  "
                     f"{_f(e['objective']):>9}  {_f(e.get('objective_without')):>9}  "
                     f"{e['winner']}{' (falls)' if e['fell'] else ''}")
     return rows

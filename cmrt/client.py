@@ -365,7 +365,8 @@ class Client:
         if basis is not None:
             body["basis"] = basis
         out = self._request("POST", "/jobs", json_body=body)
-        return Job(self, out["id"], {"id": out["id"], "status": out["status"]},
+        return Job(self, out["id"], {"id": out["id"], "status": out["status"],
+                                     "name": spec.get("name")},
                    budget=out.get("budget"))
 
     def job(self, job_id: str) -> Job:
