@@ -1,5 +1,6 @@
 """The `cmrt` command line (console script `cmrt = cli.main:main`): simulate, optimize, bench,
-pca, interpolate, serve, worker.
+pca, interpolate, serve, worker; and the client commands submit, jobs, watch, library
+(`cli/remote.py`, talking to a running service).
 
 Domain errors become one clear message on stderr and exit status 2; nothing is written then.
 """
@@ -101,18 +102,22 @@ def cmd_optimize(args: argparse.Namespace) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
 
+    from cli.progress import ProgressDisplay
+    from cmrt.client import Progress
+
     def progress(st: Any) -> None:
-        line = (f"\rgen {st.iteration:4d}  evals {st.evaluations:5d}  best {st.best_so_far:9.4f}  "
-                f"sigma {st.sigma:7.4f}  {time.perf_counter() - t0:7.1f} s")
-        print(line, end="", file=sys.stderr, flush=True)
+        # A rich bar on a terminal, else one plain line per generation (cli/progress.py).
+        show(Progress(job_id="", status="running", generation=st.iteration,
+                      evaluations=st.evaluations, max_evaluations=spec.optimize.max_evaluations,
+                      best=st.best_so_far, sigma=st.sigma, elapsed=time.perf_counter() - t0))
 
     executor = SerialExecutor() if args.workers <= 1 else PoolExecutor(args.workers)
     try:
-        res = optimize(spec, executor, seed=args.seed, x0=x0, checkpoint=ckpt,
-                       resume=args.resume, progress=progress, basis=basis)
+        with ProgressDisplay(sys.stderr, spec.name) as show:
+            res = optimize(spec, executor, seed=args.seed, x0=x0, checkpoint=ckpt,
+                           resume=args.resume, progress=progress, basis=basis)
     finally:
         executor.close()
-    print(file=sys.stderr)
     res.save(out)
     summary = {
         "spec": spec.name, "out": str(out), "objective": res.objective, "fell": res.fell,
@@ -309,6 +314,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--ping", action="store_true",
                    help="health check: exit 0 if a worker on this host answers a ping")
     w.set_defaults(func=cmd_worker)
+
+    from cli.remote import add_parsers
+
+    add_parsers(sub)  # submit, jobs, watch, library
     return p
 
 

@@ -37,6 +37,8 @@ CMRT_API_TOKEN            bearer token the API requires; unset: open  None
 CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
 CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
 CMRT_SIMULATION_WORKERS   API processes for POST /simulations clips   1
+CMRT_URL                  the service the client commands talk to     CMRT_PUBLIC_URL, else
+                          (`cmrt submit/jobs/watch/library`)          http://<api_host>:<port>
 ========================  ==========================================  =========================
 
 Invariant (checked): eval_time_limit < visibility_timeout, so Redis never re-delivers a message
@@ -117,6 +119,10 @@ class Settings(BaseSettings):
     #: Processes of the API's own pool for what-if clips (POST /simulations).
     simulation_workers: Annotated[int, Field(ge=1, le=64)] = 1
 
+    #: The service `cmrt submit / jobs / watch / library` talk to (cmrt.client); None: the
+    #: public URL, else this host's API address (`client_url`).
+    url: Annotated[str | None, Field(pattern=r"^https?://[^\s/?#]+(/[^\s?#]*)?$")] = None
+
     @field_validator("worker_concurrency", mode="before")
     @classmethod
     def _zero_is_unset(cls, v: object) -> object:
@@ -127,7 +133,7 @@ class Settings(BaseSettings):
     def _upper(cls, v: object) -> object:
         return v.upper() if isinstance(v, str) else v
 
-    @field_validator("api_token", "public_url", mode="before")
+    @field_validator("api_token", "public_url", "url", mode="before")
     @classmethod
     def _empty_is_unset(cls, v: object) -> object:
         return None if v == "" else v
@@ -154,6 +160,17 @@ class Settings(BaseSettings):
     def distributed(self) -> bool:
         """True when a Celery broker is configured (else: embedded local process pool)."""
         return bool(self.broker_url)
+
+    @property
+    def client_url(self) -> str:
+        """Where the client commands find the service: CMRT_URL, else CMRT_PUBLIC_URL, else
+        http://CMRT_API_HOST:CMRT_API_PORT (a wildcard bind address means this host)."""
+        if self.url or self.public_url:
+            return (self.url or self.public_url or "").rstrip("/")
+        host = "127.0.0.1" if self.api_host in ("0.0.0.0", "", "::") else self.api_host
+        if ":" in host:  # an IPv6 literal
+            host = f"[{host}]"
+        return f"http://{host}:{self.api_port}"
 
     def ensure_data_dir(self) -> Path:
         """Create `data_dir` if needed and return it."""

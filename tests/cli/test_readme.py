@@ -13,7 +13,10 @@ one runs (and the few substitutions, each said where it is made):
   * the servers run on a free port (`CMRT_API_PORT` / `--port`: 8000 may be taken on a shared
     machine) against the test PostgreSQL and Redis instead of the README's example URLs;
   * `docker compose` lines run only where a Docker daemon answers (skipped with the reason);
-  * `open URL` (macOS) runs as `curl -s URL`.
+  * `open URL` (macOS) runs as `curl -s URL`;
+  * `$JOB` is the first job submitted, except in the cancel line, which cancels the second
+    (the slow bend's) so that the first runs to its end: its result is checked against what
+    the README says of it (converged, standing, better than the flat spline).
 """
 
 from __future__ import annotations
@@ -147,6 +150,10 @@ COVERED = {
     "curl ": "test_servers_and_every_curl",
     "python -c ": "test_servers_and_every_curl",
     "open $API": "test_servers_and_every_curl",
+    ".venv/bin/cmrt submit": "test_client_commands",
+    ".venv/bin/cmrt jobs": "test_client_commands",
+    ".venv/bin/cmrt watch": "test_client_commands",
+    ".venv/bin/cmrt library": "test_client_commands",
 }
 
 
@@ -254,6 +261,51 @@ def test_cmrt_serve_embedded(scratch, tmp_path):
     assert (tmp_path / "data" / "cmrt.db").exists()
 
 
+def test_client_commands(scratch, tmp_path):
+    """submit / jobs / watch / library against `cmrt serve` (embedded), every form shown; the
+    README's `URL` is the server's, `JOB` the first submitted job. The scratch folder's
+    fast_bend.yaml has the tiny budget; bend_0.3 and bend_0.7 are submitted first so that
+    the library queries find entries on either side of 0.5."""
+    lines = [_strip_comment(c) for c in readme_commands()
+             if c.split()[:2] in (
+                 [".venv/bin/cmrt", "submit"], [".venv/bin/cmrt", "jobs"],
+                 [".venv/bin/cmrt", "watch"], [".venv/bin/cmrt", "library"])]
+    assert [c.split()[1] for c in lines] == ["submit", "jobs", "watch", "library", "library"]
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    env = _env(CMRT_API_PORT=str(port), CMRT_DATA_DIR=str(tmp_path / "data"), CMRT_WORKERS="1")
+    proc = _start(".venv/bin/cmrt serve", scratch, env, tmp_path / "serve.log")
+    try:
+        _wait_http(f"{url}/health", proc)
+        cli_env = {**env, "CMRT_URL": url}
+        for t in ("0.3", "0.7"):
+            p = _run(f".venv/bin/cmrt submit bend_{t}.yaml --wait", scratch, cli_env)
+            assert "library CMRT " in p.stdout
+        out: dict[str, str] = {}
+        job = None
+        for line in lines:
+            for form in _expand_optional(line):
+                if job is not None:
+                    form = form.replace(" JOB", f" {job}")
+                p = _run(form.replace("--url URL", f"--url {url}"), scratch, cli_env)
+                out[form] = p.stdout
+                if job is None and form.split()[1] == "submit":
+                    job = re.match(r"job (\S+) ", p.stdout).group(1)
+        waited = next(v for k, v in out.items() if k.endswith("--wait"))
+        assert re.search(r"^gen +\d+  evals", waited, re.M) and "library CMRT " in waited
+        watched = next(v for k, v in out.items() if k.split()[1] == "watch")
+        assert f"job {job} stopped" in watched
+        listed = next(v for k, v in out.items() if k.endswith("duration=0.3"))
+        assert "duration=0.3" in listed and "duration=0.7" not in listed
+        interp = next(v for k, v in out.items() if k.endswith("duration=0.5"))
+        lo, hi = sorted(n["task_parameters"]["duration"]
+                        for n in json.loads(interp)["neighbours"])
+        assert lo < 0.5 < hi  # 0.4 (fast_bend) or 0.3, and 0.7
+    finally:
+        rc = _stop(proc)
+    assert rc == 0, (tmp_path / "serve.log").read_text()[-3000:]
+
+
 def _redis_db() -> str:
     return f"{REDIS}/{9 + uuid.uuid4().int % 6}"
 
@@ -340,6 +392,24 @@ def _seed(api: str, scratch: Path) -> dict[str, str]:
     return {"CMRT": cmrt, "BASIS": r.json()["id"]}
 
 
+def _first_job_shows_anticipation(api: str, job_id: str, timeout: float = 600.0) -> None:
+    """The README's first job converges by its threshold to a standing CMRT better than the
+    flat spline (it says: 144 evaluations, 1.0353 against 1.4424)."""
+    t0 = time.monotonic()
+    while (j := httpx.get(f"{api}/jobs/{job_id}", timeout=30).json())["status"] in (
+            "queued", "running"):
+        assert time.monotonic() - t0 < timeout, f"the first job still {j['status']}: {j}"
+        time.sleep(1.0)
+    assert j["status"] == "converged" and j["stop_rule"] == "threshold", j
+    assert j["best_objective"] < j["spec"]["optimize"]["threshold"]
+    entry = httpx.get(f"{api}/cmrts/{j['cmrt_id']}", timeout=30).json()
+    assert entry["winner"] == "search" and not entry["fell"]
+    assert entry["objective"] == j["best_objective"] < entry["objective_without"]
+    assert not entry["fell_without"]
+    print(f"README's first job: {j['evaluations']} evaluations, best {j['best_objective']:.4f},"
+          f" flat spline {entry['objective_without']:.4f}")
+
+
 def test_servers_and_every_curl(scratch, tmp_path, pg_url):
     cmds = readme_commands()
     port = _free_port()
@@ -365,20 +435,29 @@ def test_servers_and_every_curl(scratch, tmp_path, pg_url):
             if not c.startswith(("curl ", "python -c ", "open $API")):
                 continue
             cmd = ("curl -s " + c[len("open "):]) if c.startswith("open ") else c
-            p = _run(wrap + cmd, scratch, curl_env, timeout=120)
+            line_env = curl_env
+            if "/cancel" in c and "SLOW" in curl_env:  # spare the first job (see below)
+                line_env = {**curl_env, "JOB": curl_env["SLOW"]}
+            p = _run(wrap + cmd, scratch, line_env, timeout=120)
             codes = re.findall(r"HTTP_STATUS (\d+)", p.stdout)
             assert codes, f"{c!r}: no HTTP status in {p.stdout[-500:]}"
             code = int(codes[-1])
             statuses[c] = code
             if c.startswith("curl -s -X POST $API/jobs -H") and "JOB" not in curl_env:
                 curl_env["JOB"] = json.loads(p.stdout.split("HTTP_STATUS")[0])["id"]
+            if c.startswith("python -c ") and "slow_bend.yaml" in c:
+                curl_env["SLOW"] = json.loads(p.stdout.split("HTTP_STATUS")[0])["id"]
             ok = {202, 409} if c.endswith("# 202; 409 if already finished") else range(200, 300)
             assert code in ok, f"{c!r} answered {code}: {p.stdout[-1500:]}"
         assert len(statuses) > 20, statuses  # every curl line of the README ran
-        # leave nothing running: cancel what the README's submissions started
+        # leave nothing running: cancel what the README's submissions started, except the
+        # first job, which must show anticipation working as the README says it does (so the
+        # README's cancel line above was sent for the slow bend's job, the second one)
+        assert "SLOW" in curl_env
         for j in httpx.get(f"{api}/jobs?limit=200", timeout=30).json()["items"]:
-            if j["status"] in ("queued", "running"):
+            if j["status"] in ("queued", "running") and j["id"] != curl_env["JOB"]:
                 httpx.post(f"{api}/jobs/{j['id']}/cancel", timeout=30)
+        _first_job_shows_anticipation(api, curl_env["JOB"])
     finally:
         rcs = [_stop(p) for p in procs]
     assert rcs == [0, 0], [(tmp_path / n).read_text()[-2000:] for n in ("serve.log",
