@@ -133,7 +133,7 @@ class Rollout:
         self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self.task.motions)
         self.controller: Controller = build_controller(
             spec.controller, ControllerContext(spec, ch, self.arrays, self.trajectory, DT,
-                                               FRICTION_MU))
+                                               FRICTION_MU, self.q0.copy()))
         self.fall_controller = FallController(ch, DT)
         self.steps = int(round(spec.clip.length / DT))
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
+import numpy as np
 from pydantic import (
     Field,
     SerializerFunctionWrapHandler,
@@ -54,7 +55,8 @@ _Gain = Annotated[float, Field(gt=0.0, le=1e4)] | None
 @dataclass(frozen=True)
 class ControllerContext:
     """What a controller is built from: the spec, its character and model arrays, the task's
-    reference pose trajectory, the simulation step (s) and the ground friction coefficient."""
+    reference pose trajectory, the simulation step (s), the ground friction coefficient and
+    the clip's initial (standing) generalised coordinates q."""
 
     spec: Any  # sim.spec.TaskSpec (not imported: the spec imports this module)
     character: Character
@@ -62,6 +64,7 @@ class ControllerContext:
     trajectory: PoseTrajectory
     dt: float
     mu: float
+    standing: np.ndarray
 
 
 class ControllerConfig(StrictModel):

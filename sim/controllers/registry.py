@@ -16,12 +16,15 @@ from sim.controllers.config import (
     ControllerContext,
     MomentumConfig,
 )
+from sim.controllers.pd import PdParentConfig, PdWorldConfig
 
 if TYPE_CHECKING:
     from sim.controllers.base import Controller
 
 CONTROLLER_TYPES: dict[str, type[ControllerConfig]] = {
     "momentum": MomentumConfig,
+    "pd_parent": PdParentConfig,
+    "pd_world": PdWorldConfig,
 }
 
 
