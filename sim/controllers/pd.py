@@ -32,20 +32,32 @@ j in the zero pose, of what the hinge carries: the segments beyond it away from 
 hinge whose child side holds no foot carries its child side; a hinge on a leg carries the
 rest of the body, shared among the n_f feet). The root's world servo uses I_root, the inertia
 of every segment but the feet about the ankles' midpoint. k1 (s^-2) and k2 (s^-1) are thus a
-squared natural frequency and a damping rate common to every joint (defaults: 100 s^-2 and
-20 s^-1, critically damped at 10 rad/s, the momentum controller's joint tracking gains k_t,
-d_t; the standing body's gravity stiffness about the ankles is only m g h / I ~ g / h ~
-10 s^-2, see docs/physics.md). Both servos use the same table of gains, so "world space works
-with the parent-space gains" is what the benchmarks test.
+squared natural frequency and a damping rate common to every joint. Defaults: k1 = 100 s^-2
+(10 rad/s, the momentum controller's joint tracking k_t; the standing body's gravity
+stiffness about the ankles is only m g h / I ~ g / h ~ 10 s^-2) and k2 = 10 s^-1 (damping
+ratio 0.5), the largest k2 at which the parent-space servo stands (docs/physics.md). Both
+servos use the same table of gains, as in the paper's test of world space with the
+parent-space gains.
 
-The CMRT (a horizontal CM displacement d(t) from the support centre) enters as a lean of the
-desired posture about the ankles: lambda = asin(d / h), h being the CM height above the
-ankles in the zero pose, so the desired posture's CM sits at the support centre + d. The
-feet's hinges' targets get +lambda (the body above them rotates forward by lambda while the
-feet stay flat); in world space with an absolute root the root's desired angle also gets
--lambda, so every desired world angle above the feet turns by -lambda (forward) and the feet's
-stay flat. Balance is lost (`lost`) when a heel or toe lifts FOOT_LIFT_LIMIT, the momentum
-controller's foot rule.
+Numerics: ODE applies hinge torques explicitly, and at these gains the explicit law diverges
+in stance within ~25 ms (closed-chain modes of the near-straight legs with little effective
+inertia). So the law is evaluated at the next step's state (stable PD, Tan, Liu and Turk
+2011): position error at q + dt qd, velocity error at qd + dt qdd, with qdd predicted by the
+planar model with the feet held (the M, h, J_s the momentum controller uses); `stable: false`
+gives the plain explicit law. The feet's own angular velocity is not fed back (a planted foot
+has the ground as reference; fed back, a 1 kg foot's hinge damping chatters on its soft
+contact).
+
+Desired posture and the CMRT: the reference posture at t (the task's hinge targets, the
+standing root angle) is leaned about the ankles' midpoint by the angle lambda(t) that puts its
+CM over the support centre plus the CMRT's horizontal displacement d(t), the way the standing
+pose itself is found (`balance: true` in the character file); without a CMRT d = 0, the
+momentum controller's CM reference. The feet's hinges' targets get +lambda (the body above
+them turns forward by lambda while the feet stay flat); in world space with an absolute root
+the root's desired angle gets -lambda too, so every desired world angle above the feet turns
+by -lambda and the feet's stay flat. A servo with no CM term of its own thus tracks the CMRT
+through its posture. Balance is lost (`lost`) when a heel or toe lifts FOOT_LIFT_LIMIT, the
+momentum controller's foot rule.
 """
 
 from __future__ import annotations
