@@ -252,3 +252,4 @@ def test_a_cmrt_moves_the_cm_by_its_displacement(kind):
     behind = float(np.mean(back.traces.cm[-500:, 0] - settled))
     assert 0.03 < ahead < 0.06 and -0.06 < behind < -0.03
     assert ahead == pytest.approx(-behind, rel=0.05)  # linear in the displacement
+
