@@ -73,6 +73,7 @@ from sim.controllers.base import Cmrt, Controller, Observation
 from sim.controllers.config import ControllerConfig, ControllerContext
 from sim.controllers.momentum import FOOT_LIFT_LIMIT
 from sim.dynamics import ModelArrays, forward_kinematics
+from sim.errors import SimError
 from sim.trajectory import PoseTrajectory
 
 #: Default position gain (s^-2): torque per radian per kg m^2 carried (10 rad/s squared).
@@ -250,7 +251,11 @@ class PdServo:
         rhs = np.zeros(n + k)
         rhs[:n] = -obs.h
         rhs[ROOT_DOF:n] += tau0
-        qdd = np.linalg.solve(K, rhs)[:n]
+        try:
+            qdd = np.linalg.solve(K, rhs)[:n]
+        except np.linalg.LinAlgError:
+            raise SimError("the PD servo's feet-held model is singular at this state (gains "
+                           f"k2 {self.K2.max():.3g} N m s/rad at most)") from None
         return tau0 - dt * (self.B_d @ qdd)
 
     # ---- the laws -------------------------------------------------------------------------
