@@ -40,7 +40,7 @@ servos use the same table of gains, as in the paper's test of world space with t
 parent-space gains.
 
 Numerics: ODE applies hinge torques explicitly, and at these gains the explicit law diverges
-in stance within ~25 ms (closed-chain modes of the near-straight legs with little effective
+in stance within 25-40 ms (closed-chain modes of the near-straight legs with little effective
 inertia). So the law is evaluated at the next step's state (stable PD, Tan, Liu and Turk
 2011): position error at q + dt qd, velocity error at qd + dt qdd, with qdd predicted by the
 planar model with the feet held (the M, h, J_s the momentum controller uses); `stable: false`
@@ -78,7 +78,8 @@ from sim.trajectory import PoseTrajectory
 
 #: Default position gain (s^-2): torque per radian per kg m^2 carried (10 rad/s squared).
 DEFAULT_K1 = 100.0
-#: Default velocity gain (s^-1): 2 sqrt(k1), critical damping of the carried inertia.
+#: Default velocity gain (s^-1): damping ratio 0.5 at k1; the largest of 5, 10, 20, 40 at
+#: which the parent-space servo stands (docs/physics.md, "PD servos").
 DEFAULT_K2 = 10.0
 #: Default look-ahead (s) of the desired angular velocity: the paper takes the time between
 #: motion-capture frames; the CMU database it drew on records at 120 Hz.
@@ -179,9 +180,8 @@ class PdServo:
             while k > 0:
                 self.lift_matrix[b, k - 1] = 1.0
                 k = self.parent[k]
-        # The laws are tau = a(q, t) - B_p qd dt... written tau_explicit(q, qd, t) with
-        # d tau / d qd = -B_d (velocity gains) and -B_p the position gains' rows (d tau / d q
-        # along qd): constant matrices (n_h, n).
+        # The laws' derivatives, constant (n_h, n) matrices: d tau / d q = -B_p (position
+        # gains), d tau / d qd = -B_d (velocity gains); the stable PD needs both.
         n = ch.ndof
         self.B_p, self.B_d = np.zeros((ch.n_hinges, n)), np.zeros((ch.n_hinges, n))
         if space == "parent":
@@ -198,9 +198,9 @@ class PdServo:
                 self.B_p += np.outer(spread, self.K1_root * rows[0])
                 self.B_d += np.outer(spread, self.K2_root * rows[0])
         # The feet are planted: their measured angular velocity is not fed back (the ground is
-        # their reference). A foot weighs ~1 kg: fed back, its hinge's damping (720 N m s/rad
-        # at the defaults) times dt / (its 0.018 kg m^2) is ~40, and the explicit torque makes
-        # the foot chatter on its soft contact and diverge within 10 ms.
+        # their reference). A foot weighs ~1 kg: fed back, its hinge's damping (360 N m s/rad
+        # at the defaults) times dt / (its 0.018 kg m^2) is ~20, and the explicit torque makes
+        # the foot chatter on its soft contact and diverge within tens of ms.
         self.foot_rows = np.zeros((len(self.ankles), n))
         for i, f in enumerate(ch.feet):
             self.foot_rows[i, 2] = 1.0
