@@ -66,7 +66,10 @@ def _controller_tag(value: Any) -> str | None:
 #: (default: momentum).
 ControllerBlock = Annotated[
     Union[tuple(Annotated[c, Tag(k)] for k, c in CONTROLLER_TYPES.items())],  # noqa: UP007
-    Discriminator(_controller_tag)]
+    Discriminator(_controller_tag, custom_error_type="controller_type",
+                  custom_error_message=(f"must be a mapping whose `type` (default "
+                                        f"{DEFAULT_CONTROLLER}) is one of "
+                                        f"{', '.join(CONTROLLER_TYPES)}"))]
 
 
 class CharacterRef(_Strict):
@@ -270,14 +273,12 @@ def _format_error(err: ValidationError) -> str:
         if len(loc) > 1 and loc[0] == "controller" and loc[1] in CONTROLLER_TYPES:
             del loc[1]
         msg = e["msg"].removeprefix("Value error, ")
-        if loc and loc[0] == "controller" and e["type"] == "union_tag_invalid":
-            loc = ["controller", "type"]
-            msg = (f"unknown controller type {e['ctx']['tag']!r}; controller types are "
-                   f"{', '.join(CONTROLLER_TYPES)}")
-        elif loc and loc[0] == "controller" and e["type"] == "union_tag_not_found":
-            loc = ["controller", "type"]
-            msg = (f"must be a mapping whose `type` (default {DEFAULT_CONTROLLER}) is one of "
-                   f"{', '.join(CONTROLLER_TYPES)}")
+        if e["type"] == "controller_type":
+            loc = [*loc, "type"]
+            tag = e["input"].get("type") if isinstance(e["input"], dict) else None
+            if isinstance(tag, str):
+                msg = (f"unknown controller type {tag!r}; controller types are "
+                       f"{', '.join(CONTROLLER_TYPES)}")
         elif e["type"] == "union_tag_invalid":
             msg = (f"unknown task type {e['ctx']['tag']!r}; task types are "
                    f"{', '.join(TASK_TYPES)}")

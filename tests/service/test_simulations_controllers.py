@@ -36,7 +36,8 @@ def test_pd_clip_is_the_direct_rollout(client, controller):
 # The API's messages keep pydantic's union tag in the path, as for `task`
 # (spec.task.push.force); sim.parse_spec (the CLI) drops it.
 @pytest.mark.parametrize(("controller", "needle"), [
-    ({"type": "pd"}, "spec.controller: Input tag 'pd'"),
+    ({"type": "pd"}, "spec.controller: must be a mapping whose `type` (default momentum) is "
+                     "one of momentum, pd_parent, pd_world"),
     ({"type": "pd_world", "k2": -1.0}, "spec.controller.pd_world.k2: Input should be greater"),
     ({"type": "momentum", "stepping": True},
      "spec.controller.momentum.stepping: Value error, stepping is not yet available"),
