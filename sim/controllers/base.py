@@ -9,6 +9,11 @@ Contract of a `Controller`:
     the physics clamps them to the character's torque limits.
   * `lost` is None while the controller holds balance, else a short reason: the rollout then
     hands over to the fall controller. A controller never steps the world or reads ODE.
+  * `c_ref` is the CM reference (x in m, vertical displacement in m) of the last `act`, what
+    the recording shows beside the CM (a controller without a CM target of its own reports
+    the support centre plus the CMRT displacement it follows).
+  * Balance controllers are built from the spec's `controller` block by one factory,
+    `sim.controllers.registry.build_controller` (contract in `sim.controllers.config`).
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ class Observation:
 
 class Controller(Protocol):
     lost: str | None
+    c_ref: tuple[float, float]
 
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None: ...
