@@ -30,8 +30,9 @@ import time
 import numpy as np
 
 from sim.character import ROOT_DOF, Character
-from sim.controllers import ControllerParams, FallController, GainScheduler, MomentumController
+from sim.controllers import FallController
 from sim.controllers.base import Cmrt, Controller, Observation, stance_terms
+from sim.controllers.registry import ControllerContext, build_controller
 from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics, step_model
 from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
@@ -130,15 +131,10 @@ class Rollout:
         _, p0, _ = forward_kinematics(self.q0, self.arrays.parent, self.arrays.a_par,
                                       self.arrays.a_chi)
         self.cm0 = (ch.mass[:, None] * p0).sum(axis=0) / ch.mass.sum()
-        self.params = ControllerParams().with_overrides(dict(spec.controller))
-        entries = []
-        for s in spec.schedule:
-            start, end = spec.schedule_window(s)
-            entries.append((start, end, s.ramp, dict(s.scale), dict(s.set)))
-        self.schedule = GainScheduler(self.params, entries)
         self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self.task.motions)
-        self.controller = MomentumController(ch, self.schedule, self.trajectory, self.arrays,
-                                             dt=DT, mu=FRICTION_MU)
+        self.controller: Controller = build_controller(
+            spec.controller, ControllerContext(spec, ch, self.arrays, self.trajectory, DT,
+                                               FRICTION_MU))
         self.fall_controller = FallController(ch, DT)
         self.steps = int(round(spec.clip.length / DT))
 
@@ -154,8 +150,8 @@ class Rollout:
         n_steps = self.steps
         phys.reset(self.q0)
         task.reset(phys)
-        momentum = self.controller
-        active: Controller = momentum
+        balance = self.controller
+        active: Controller = balance
         active.reset(None, cmrt)
         events = task.events
         foot_of_point = np.repeat(ch.feet, 2).tolist()
@@ -206,7 +202,7 @@ class Rollout:
                               stance)
             tau = active.act(obs, t)
             if not lost:
-                c_ref = momentum.c_ref
+                c_ref = balance.c_ref
                 if active.lost is not None:
                     lost = True
                     fall_time, fall_reason = t, f"balance_lost:{active.lost}"

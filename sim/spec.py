@@ -16,6 +16,12 @@ The `task` block is a discriminated union on `type` over the registry `sim.tasks
 The pre-registry form (`task: push` with a separate `push:` / `pose_change:` / `motions:`
 block) is still read and converted to it; `model_dump()` always gives the new form.
 
+The `controller` block is a discriminated union on `type` over the registry
+`sim.controllers.registry.CONTROLLER_TYPES` (contract in `sim.controllers.config`):
+
+    controller: {type: momentum, k_l: 30}    # the default type; its gains override the defaults
+    controller: {k_l: 30}                    # the legacy flat form: momentum overrides
+
 Units: seconds, metres, newtons, kilograms; joint angles in specs are in degrees.
 """
 
@@ -26,17 +32,14 @@ from pathlib import Path
 from typing import Annotated, Any, Union
 
 import yaml
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
 from sim.character import DATA_DIR, DEFAULT_CHARACTER, Character, load_character
+from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
+from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
 from sim.specbase import StrictModel
 from sim.tasks import TASK_TYPES
-
-#: Names accepted in controller overrides and gain schedules (see
-#: sim.controllers.momentum.ControllerParams).
-GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l", "b_h", "b_t",
-                               "b_p", "cop_box")
 
 MAX_CLIP_SECONDS = 20.0
 #: Narrowest room (m) the CoP box may leave on each side of the support centre.
@@ -47,6 +50,23 @@ _Strict = StrictModel
 TaskBlock = Annotated[Union[tuple(TASK_TYPES.values())], Field(discriminator="type")]  # noqa: UP007
 #: Blocks of the pre-registry form, by task name.
 _LEGACY_BLOCKS = {"push": "push", "pose_change": "pose_change", "sequence": "motions"}
+
+
+def _controller_tag(value: Any) -> str | None:
+    """The `controller` block's type: its `type`, or the default type when it has none (the
+    legacy flat dict of momentum overrides)."""
+    if isinstance(value, dict):
+        tag = value.get("type", DEFAULT_CONTROLLER)
+    else:
+        tag = getattr(value, "type", None)
+    return tag if isinstance(tag, str) else None
+
+
+#: The `controller` field: one of the registered controller types, chosen by its `type`
+#: (default: momentum).
+ControllerBlock = Annotated[
+    Union[tuple(Annotated[c, Tag(k)] for k, c in CONTROLLER_TYPES.items())],  # noqa: UP007
+    Discriminator(_controller_tag)]
 
 
 class CharacterRef(_Strict):
@@ -155,7 +175,7 @@ class TaskSpec(_Strict):
     family: Annotated[str, Field(min_length=1, max_length=100)] | None = None
     character: CharacterRef = CharacterRef()
     clip: Clip
-    controller: dict[str, Annotated[float, Field(gt=0.0, le=1e4)]] = {}
+    controller: ControllerBlock = CONTROLLER_TYPES[DEFAULT_CONTROLLER]()
     schedule: Annotated[list[GainSchedule], Field(max_length=16)] = []
     cmrt: CmrtConfig = CmrtConfig()
     optimize: OptimizeConfig = OptimizeConfig()
@@ -184,14 +204,6 @@ class TaskSpec(_Strict):
         d["task"] = task
         return d
 
-    @field_validator("controller")
-    @classmethod
-    def _gain_names(cls, v: dict[str, float]) -> dict[str, float]:
-        for name in v:
-            if name not in GAIN_NAMES:
-                raise ValueError(f"unknown gain {name!r}; gains are {', '.join(GAIN_NAMES)}")
-        return v
-
     @model_validator(mode="after")
     def _cross_field(self) -> TaskSpec:
         try:
@@ -199,12 +211,16 @@ class TaskSpec(_Strict):
         except CharacterError as err:
             raise ValueError(f"character: {err}") from None
         self.task.check(self, ch)
+        self.controller.check(self, ch)
+        if self.schedule and not self.controller.schedules_gains:
+            raise ValueError(f"schedule: gain schedules apply to the momentum controller's "
+                             f"gains; controller type {self.controller.type!r} takes none")
         for i, s in enumerate(self.schedule):
             a, b = self.schedule_window(s)
             if b <= a:
                 raise ValueError(f"schedule.{i}: end must be after start")
         room = 0.5 * ch.support_length - MIN_COP_BOX_WIDTH
-        boxes = [("controller.cop_box", self.controller.get("cop_box"))] + [
+        boxes = [("controller.cop_box", getattr(self.controller, "cop_box", None))] + [
             (f"schedule.{i}.set.cop_box", s.set.get("cop_box"))
             for i, s in enumerate(self.schedule)]
         for where, v in boxes:
@@ -251,8 +267,18 @@ def _format_error(err: ValidationError) -> str:
         loc = list(e["loc"])
         if len(loc) > 1 and loc[0] == "task" and loc[1] in TASK_TYPES:
             del loc[1]  # pydantic puts the union member's tag in the path
+        if len(loc) > 1 and loc[0] == "controller" and loc[1] in CONTROLLER_TYPES:
+            del loc[1]
         msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] == "union_tag_invalid":
+        if loc and loc[0] == "controller" and e["type"] == "union_tag_invalid":
+            loc = ["controller", "type"]
+            msg = (f"unknown controller type {e['ctx']['tag']!r}; controller types are "
+                   f"{', '.join(CONTROLLER_TYPES)}")
+        elif loc and loc[0] == "controller" and e["type"] == "union_tag_not_found":
+            loc = ["controller", "type"]
+            msg = (f"must be a mapping whose `type` (default {DEFAULT_CONTROLLER}) is one of "
+                   f"{', '.join(CONTROLLER_TYPES)}")
+        elif e["type"] == "union_tag_invalid":
             msg = (f"unknown task type {e['ctx']['tag']!r}; task types are "
                    f"{', '.join(TASK_TYPES)}")
         elif e["type"] == "union_tag_not_found":

@@ -13,6 +13,11 @@ Contract of a `Controller`:
     planted for the next step, None for every foot. The rollout builds the observation's `Js`,
     `points`, `sole_x` and `support` from those feet only (`stance_terms`), so a swing foot's
     constraint rows are dropped; a controller without the attribute plants every foot.
+  * `c_ref` is the CM reference (x in m, vertical displacement in m) of the last `act`, what
+    the recording shows beside the CM (a controller without a CM target of its own reports
+    the support centre plus the CMRT displacement it follows).
+  * Balance controllers are built from the spec's `controller` block by one factory,
+    `sim.controllers.registry.build_controller` (contract in `sim.controllers.config`).
 """
 
 from __future__ import annotations
@@ -68,6 +73,7 @@ def stance_terms(Js: np.ndarray, points: np.ndarray, sole_x: np.ndarray,
 
 class Controller(Protocol):
     lost: str | None
+    c_ref: tuple[float, float]
 
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None: ...

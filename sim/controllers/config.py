@@ -1,0 +1,140 @@
+"""What a controller type is: its spec block (`ControllerConfig`) and how it is built.
+
+The spec's `controller` field is a discriminated union on `type` over the registry
+`sim.controllers.registry.CONTROLLER_TYPES`:
+
+    controller: {type: momentum, k_l: 30}       # the momentum QP (the default) with overrides
+    controller: {type: pd_world, k1: 100}       # (see sim.controllers.pd)
+    controller: {k_l: 30}                       # the legacy form: momentum overrides
+
+A block without `type` (the legacy flat dict of gain overrides, `{}` included) is the momentum
+controller's, so every spec written before the union keeps its meaning and its objective.
+
+Contract of a `ControllerConfig` (a pydantic model with a `type: Literal[...]` tag):
+  * `check(spec, character)`: rules that need the rest of the spec or the character; raises
+    ValueError whose message starts with the field's path (`controller.k1: ...`).
+  * `build(context) -> Controller`: the run-time controller (the protocol of
+    `sim.controllers.base`) for one rollout; `context` is a `ControllerContext`.
+  * `schedules_gains`: whether the spec's `schedule` (gain schedules of the momentum gains)
+    applies to this controller; a spec with a schedule and a controller that does not take
+    one is rejected at parse time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
+
+from pydantic import (
+    Field,
+    SerializerFunctionWrapHandler,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
+
+from sim.specbase import StrictModel
+
+if TYPE_CHECKING:
+    from sim.character import Character
+    from sim.controllers.base import Controller
+    from sim.dynamics import ModelArrays
+    from sim.trajectory import PoseTrajectory
+
+#: Names accepted in momentum overrides and gain schedules (the fields of
+#: sim.controllers.momentum.ControllerParams that a spec may set).
+GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l", "b_h", "b_t",
+                               "b_p", "cop_box")
+#: The type a `controller` block without `type` has.
+DEFAULT_CONTROLLER = "momentum"
+
+_Gain = Annotated[float, Field(gt=0.0, le=1e4)] | None
+
+
+@dataclass(frozen=True)
+class ControllerContext:
+    """What a controller is built from: the spec, its character and model arrays, the task's
+    reference pose trajectory, the simulation step (s) and the ground friction coefficient."""
+
+    spec: Any  # sim.spec.TaskSpec (not imported: the spec imports this module)
+    character: Character
+    arrays: ModelArrays
+    trajectory: PoseTrajectory
+    dt: float
+    mu: float
+
+
+class ControllerConfig(StrictModel):
+    """Base of every controller type's spec block; see the module docstring."""
+
+    type: str
+    schedules_gains: ClassVar[bool] = False
+
+    def check(self, spec: Any, character: Character) -> None:
+        return None
+
+    def build(self, context: ControllerContext) -> Controller:
+        raise NotImplementedError
+
+
+class MomentumConfig(ControllerConfig):
+    """`controller: {type: momentum, <gain>: value, ...}`: the momentum QP
+    (sim.controllers.momentum) with the named gains and weights overriding ControllerParams'
+    defaults. `stepping` is the step controller's switch (not yet available: true is
+    rejected until the stepping controller exists)."""
+
+    type: Literal["momentum"] = "momentum"
+    stepping: bool = False
+    k_l: _Gain = None
+    d_l: _Gain = None
+    d_l_vertical: _Gain = None
+    k_t: _Gain = None
+    d_t: _Gain = None
+    b_l: _Gain = None
+    b_h: _Gain = None
+    b_t: _Gain = None
+    b_p: _Gain = None
+    cop_box: _Gain = None
+
+    schedules_gains: ClassVar[bool] = True
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_names(cls, data: Any) -> Any:
+        """An unknown key is an unknown gain (the legacy message, naming the gains)."""
+        if isinstance(data, dict):
+            for name in data:
+                if name not in cls.model_fields:
+                    raise ValueError(f"unknown gain {name!r}; gains are {', '.join(GAIN_NAMES)}")
+        return data
+
+    @field_validator("stepping")
+    @classmethod
+    def _stepping_not_yet(cls, v: bool) -> bool:
+        if v:
+            raise ValueError("stepping is not yet available (the stepping controller is not "
+                             "part of this version); leave it false")
+        return v
+
+    @model_serializer(mode="wrap")
+    def _drop_unset_gains(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Dump only the overrides that are set (a default spec dumps `{type: momentum,
+        stepping: false}`)."""
+        return {k: v for k, v in handler(self).items() if v is not None}
+
+    def overrides(self) -> dict[str, float]:
+        """{gain name: value} of the gains this block sets."""
+        return {k: v for k in GAIN_NAMES if (v := getattr(self, k)) is not None}
+
+    def build(self, context: ControllerContext) -> Controller:
+        from sim.controllers.momentum import ControllerParams, GainScheduler, MomentumController
+
+        spec = context.spec
+        params = ControllerParams().with_overrides(self.overrides())
+        entries = []
+        for s in spec.schedule:
+            start, end = spec.schedule_window(s)
+            entries.append((start, end, s.ramp, dict(s.scale), dict(s.set)))
+        return MomentumController(context.character, GainScheduler(params, entries),
+                                  context.trajectory, context.arrays, dt=context.dt,
+                                  mu=context.mu)

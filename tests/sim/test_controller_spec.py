@@ -1,0 +1,78 @@
+"""The spec's `controller` block: a discriminated union on `type` (default momentum), the
+legacy flat dict of momentum overrides read as before, errors naming the field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from sim.controllers import MomentumController
+from sim.controllers.config import MomentumConfig
+from sim.controllers.registry import CONTROLLER_TYPES
+from sim.errors import SpecError
+from sim.spec import parse_spec
+
+EXAMPLES_DIR = Path(__file__).resolve().parents[2] / "examples"
+
+
+def _bend(controller=None) -> dict:
+    d = yaml.safe_load((EXAMPLES_DIR / "slow_bend.yaml").read_text())
+    if controller is not None:
+        d["controller"] = controller
+    return d
+
+
+def test_registry_holds_the_default_type():
+    assert CONTROLLER_TYPES["momentum"] is MomentumConfig
+
+
+def test_legacy_flat_dict_is_momentum_overrides():
+    legacy = parse_spec(_bend({"k_l": 30.0, "d_t": 25.0}))
+    tagged = parse_spec(_bend({"type": "momentum", "k_l": 30.0, "d_t": 25.0}))
+    assert legacy == tagged
+    assert legacy.controller.type == "momentum" and not legacy.controller.stepping
+    assert legacy.controller.overrides() == {"k_l": 30.0, "d_t": 25.0}
+    # The dump is the tagged form with only the set gains, and reads back to the same spec.
+    dumped = legacy.model_dump(mode="json")["controller"]
+    assert dumped == {"type": "momentum", "stepping": False, "k_l": 30.0, "d_t": 25.0}
+    assert parse_spec(legacy.model_dump(mode="json")) == legacy
+
+
+def test_no_controller_and_empty_dict_are_the_default_momentum():
+    absent = parse_spec(_bend())
+    empty = parse_spec(_bend({}))
+    assert absent == empty
+    assert absent.controller.type == "momentum" and absent.controller.overrides() == {}
+
+
+@pytest.mark.parametrize(("block", "field", "rule"), [
+    ({"type": "walk"}, "controller.type", "unknown controller type 'walk'"),
+    ({"type": 3}, "controller.type", "one of momentum"),
+    ([1.0], "controller.type", "must be a mapping"),
+    ({"kl": 20.0}, "controller", "unknown gain 'kl'"),
+    ({"type": "momentum", "k_l": -1.0}, "controller.k_l", "greater than 0"),
+    ({"type": "momentum", "k_l": "20"}, "controller.k_l", "valid number"),
+    ({"type": "momentum", "stepping": 1}, "controller.stepping", "valid boolean"),
+    ({"type": "momentum", "stepping": True}, "controller.stepping", "not yet available"),
+    ({"cop_box": 10000.0}, "controller.cop_box", "below half the support length"),
+])
+def test_bad_controller_block_names_field_and_rule(block, field, rule):
+    with pytest.raises(SpecError) as info:
+        parse_spec(_bend(block), source="bad.yaml")
+    msg = str(info.value)
+    assert msg.startswith(f"bad.yaml: {field}: "), msg
+    assert rule in msg, msg
+
+
+def test_rollout_builds_the_momentum_controller_from_the_block():
+    from sim.rollout import Rollout
+
+    sim = Rollout(parse_spec(_bend({"type": "momentum", "k_l": 30.0})))
+    try:
+        assert isinstance(sim.controller, MomentumController)
+        assert sim.controller.schedule.base.k_l == 30.0
+        assert sim.controller.schedule.base.d_l == 7.0  # the default stays
+    finally:
+        sim.close()
