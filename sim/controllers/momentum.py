@@ -43,6 +43,7 @@ from sim.dynamics import (
     WRENCH_REASONS,
     ModelArrays,
     checked_inverse_dynamics,
+    checked_inverse_dynamics_feet,
     momentum_bias,
 )
 from sim.trajectory import PoseTrajectory, ease
@@ -56,6 +57,8 @@ WRENCH_VIOLATION_LIMIT = 0.25
 #: ... or when a heel or toe has lifted this high (m): the foot is rotating about an edge and
 #: the foot-fixed model no longer holds.
 FOOT_LIFT_LIMIT = 0.03
+#: m: with the feet apart, each foot's own CoP is kept this far inside its heel and toe.
+FOOT_COP_MARGIN = 0.01
 CMRT_VELOCITY_STEP = 1e-3  # s, central difference for the CMRT's velocity
 
 
@@ -183,6 +186,10 @@ class MomentumController:
         self._k = 0
         self._violation_steps = 0
         self._disp = (0.0, 0.0)
+        #: True: the support wrench is shared between the stance feet by
+        #: `sim.dynamics.inverse_dynamics_feet` (feet apart, after a step); False: the plain
+        #: least-norm wrench (feet side by side, the default).
+        self.feet_apart = False
 
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None:
@@ -210,8 +217,13 @@ class MomentumController:
             self.solve(t, obs.q, obs.qd, obs.c, obs.cd, obs.A_L, obs.A_H, obs.Js, (lo, hi),
                        self.c_ref, vel, lambda: stance_bias(self.arrays, obs))
         self._k += 1
-        tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.qdd, obs.sole_x,
-                                                   lo, hi, self.mu)
+        if self.feet_apart and len(obs.sole_x) > 1:
+            tau, code, _cop = checked_inverse_dynamics_feet(
+                obs.M, obs.h, obs.Js, self.qdd, obs.points, obs.sole_x, lo, hi, self.mu,
+                FOOT_COP_MARGIN)
+        else:
+            tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.qdd,
+                                                       obs.sole_x, lo, hi, self.mu)
         violations = self._violation_steps + 1 if code != WRENCH_OK else 0
         self._violation_steps = violations
         if code == WRENCH_NO_NORMAL_FORCE or violations * self.dt > WRENCH_VIOLATION_LIMIT:
