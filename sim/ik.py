@@ -19,7 +19,7 @@ from sim.character import ROOT_DOF, Character
 from sim.dynamics import ModelArrays, body_point, forward_kinematics, point_jacobian
 
 IK_TOLERANCE = 1e-4  # m (or rad): a target is reached within this
-IK_MAX_ITERATIONS = 30
+IK_MAX_ITERATIONS = 50
 IK_DAMPING = 1e-8
 
 

@@ -81,7 +81,7 @@ class MomentumConfig(ControllerConfig):
     (sim.controllers.momentum) with the named gains and weights overriding ControllerParams'
     defaults. `stepping: true` adds the step controller (sim.controllers.stepping): feet
     planted while the capture point stays in the support, one step when it does not;
-    `response_delay` (s, default SteppingParams' 0.2, the stepping paper's) is how long after
+    `response_delay` (s, default 0; the stepping paper's 0.2 is an option) is how long after
     the capture point leaves the support the step starts."""
 
     type: Literal["momentum"] = "momentum"

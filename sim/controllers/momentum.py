@@ -190,6 +190,8 @@ class MomentumController:
         #: `sim.dynamics.inverse_dynamics_feet` (feet apart, after a step); False: the plain
         #: least-norm wrench (feet side by side, the default).
         self.feet_apart = False
+        #: m: a stance heel or toe this high loses balance (FOOT_LIFT_LIMIT by default).
+        self.foot_lift_limit = FOOT_LIFT_LIMIT
 
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None:
@@ -228,7 +230,7 @@ class MomentumController:
         self._violation_steps = violations
         if code == WRENCH_NO_NORMAL_FORCE or violations * self.dt > WRENCH_VIOLATION_LIMIT:
             self.lost = WRENCH_REASONS[code]
-        elif max(obs.points[:, 1].tolist()) > FOOT_LIFT_LIMIT:  # stance feet's heels and toes
+        elif max(obs.points[:, 1].tolist()) > self.foot_lift_limit:  # stance heels and toes
             self.lost = "foot_lift"
         return tau
 

@@ -59,6 +59,9 @@ from sim.trajectory import PoseTrajectory
 
 #: A foot whose heel or toe is this low (m) touches the ground (the physics' contact margin).
 TOUCHDOWN_HEIGHT = 0.0005
+#: rad/s: the legs' reference rates (finite differences of two IK postures) are bounded so
+#: that an IK jump near a straight knee cannot command a violent acceleration.
+MAX_REFERENCE_RATE = 15.0
 #: The swing foot cannot land before this fraction of the planned swing (it starts on the
 #: ground).
 MIN_SWING_FRACTION = 0.5
@@ -68,9 +71,11 @@ MIN_SWING_FRACTION = 0.5
 class SteppingParams:
     """Settings of the step (units in the names' comments)."""
 
-    response_delay: float = 0.2  # s, from the capture point leaving the support to the step
+    #: s, from the capture point leaving the support to the step; the stepping paper's 0.2 s
+    #: is an option (docs/physics.md: with it the step starts too late here)
+    response_delay: float = 0.0
     capture_margin: float = 0.0  # m, how far beyond an edge the capture point may go unstepped
-    step_duration: float = 0.35  # s, planned swing time
+    step_duration: float = 0.3  # s, planned swing time
     clearance: float = 0.05  # m, the swing foot's lift at mid-swing
     cop_margin: float = 0.02  # m, the QP's CoP (ZMP) kept this far inside the stance foot
     swing_stiffness: float = 400.0  # s^-2, the legs' tracking stiffness during the swing
@@ -82,8 +87,13 @@ class SteppingParams:
     touchdown_timeout: float = 0.25  # s after the planned touch-down: then balance is lost
     #: m: the stance foot's heel or toe lifted this high during the swing loses balance (the
     #: swing model holds the stance foot fixed; a foot rolling over its toe breaks it)
-    stance_lift_limit: float = FOOT_LIFT_LIMIT
+    stance_lift_limit: float = 0.08
     replan: bool = True  # re-plan the landing from the CM state at every swing QP solve
+    #: m: after landing, a heel or toe this high loses balance (the rear heel of a long step
+    #: rises as the CM passes over the front foot)
+    landed_lift_limit: float = FOOT_LIFT_LIMIT
+    swing_qp_period: float = 0.005  # s between the swing QP solves (feet-fixed: 1/60 s)
+    max_steps: int = 3  # steps in one clip (the first and the follow-ups)
     landed_cop_margin: float = 0.02  # m, the CoP constraint of the QP after landing (0: off)
     settle_time: float = 0.3  # s, the legs' reference goes from touch-down to the held posture
 
@@ -187,6 +197,8 @@ class SteppingController:
         nf = len(ch.feet)
         if nf < 2:
             raise ValueError("stepping needs a character with at least two feet")
+        #: The first step swings the last foot (feet side by side: any one would do); a
+        #: follow-up step swings the foot left behind.
         self.swing = nf - 1
         self.support_feet = tuple(range(nf - 1))
         self.legs = [leg_hinges(ch, int(f)) for f in ch.feet]
@@ -194,23 +206,27 @@ class SteppingController:
         sole0 = 0.5 * (ch.heel0[self.swing] + ch.toe0[self.swing])
         self.leg_length = float(np.hypot(*(ch.anchor0[top] - sole0)))
         self.feet_fixed = MomentumController(ch, schedule, trajectory, self.arrays, dt, mu)
-        self.qp_every = self.feet_fixed.qp_every
-        weights = {ch.hinge_names[j]: self.params.stance_weight
-                   for f in self.support_feet for j in self.legs[f]}
-        weights.update({ch.hinge_names[j]: self.params.swing_weight
-                        for j in self.legs[self.swing]})
+        self.qp_every = max(1, int(round(self.params.swing_qp_period / dt)))
         base = schedule.base
-        self.swing_params = replace(base, cop_box=self.params.cop_margin,
-                                    weights={**base.weights, **weights})
         self._ref = _Reference(ch.n_hinges)
-        self.swing_qp = _PlannedMomentum(ch, GainScheduler(self.swing_params, []), self._ref,
-                                         self.arrays, dt, mu)
+        #: Per swing foot: the swing QP's gains (CoP constraint on, that leg's tracking weight
+        #: raised, the stance legs' lowered) and the QP itself.
+        self.swing_qps: list[_PlannedMomentum] = []
+        for sw in range(nf):
+            weights = {ch.hinge_names[j]: self.params.stance_weight
+                       for f in range(nf) if f != sw for j in self.legs[f]}
+            weights.update({ch.hinge_names[j]: self.params.swing_weight for j in self.legs[sw]})
+            prm = replace(base, cop_box=self.params.cop_margin,
+                          weights={**base.weights, **weights})
+            self.swing_qps.append(_PlannedMomentum(ch, GainScheduler(prm, []), self._ref,
+                                                   self.arrays, dt, mu))
         self._held = _HeldLegs(trajectory)
         landed = GainScheduler(replace(schedule.base, cop_box=self.params.landed_cop_margin),
                                schedule.entries) if self.params.landed_cop_margin > 0 else schedule
         self.landed_qp = MomentumController(ch, landed, self._held, self.arrays, dt, mu)
         # The feet are apart after the step: share the wrench by weight, not by foot torques.
         self.landed_qp.feet_apart = True
+        self.landed_qp.foot_lift_limit = self.params.landed_lift_limit
         self.steps: list[StepRecord] = []
         self.reset()
 
@@ -237,7 +253,17 @@ class SteppingController:
             return self._swing(obs, t)
         tau = self.landed_qp.act(obs, t)
         self.c_ref = self.landed_qp.c_ref
-        self.lost = self.landed_qp.lost
+        if self.landed_qp.lost is not None:
+            # The feet-fixed balance over the wider support fails (typically the rear heel
+            # lifts as the CM runs on over the front foot): bring the foot left behind
+            # forward (or, stepping back, the front foot back) under the capture point.
+            xi = capture_point(obs.c, obs.cd)
+            d = 1 if xi >= 0.5 * sum(obs.support) else -1
+            if len(self.steps) < self.params.max_steps:
+                swing = int(np.argmin(d * np.asarray(obs.sole_x)))
+                self._start_step(obs, t, d, swing)
+            else:
+                self.lost = self.landed_qp.lost
         return tau
 
     # ---- phases ---------------------------------------------------------------------------
@@ -250,20 +276,32 @@ class SteppingController:
             self.phase, self._detected = "pending", t
         elif self.phase == "pending" and d == 0:
             self.phase = "feet_fixed"  # recovered in place: no step
-        if self.phase == "pending" and t - self._detected >= prm.response_delay - 1e-9:
-            self._start_step(obs, t, d)
-        elif self.feet_fixed.lost is not None:
-            self.lost = self.feet_fixed.lost
+        if self.feet_fixed.lost is not None:
+            # The feet-fixed controller fails (a heel or toe lifts, its wrench inadmissible):
+            # step at once, towards the capture point (the paper's rule: stepping takes over
+            # when balance with the feet planted fails), delay or not.
+            if self.phase == "feet_fixed":
+                self._detected = t
+            xi = capture_point(obs.c, obs.cd)
+            self._start_step(obs, t, 1 if xi >= 0.5 * sum(obs.support) else -1, self.swing)
+        elif self.phase == "pending" and t - self._detected >= prm.response_delay - 1e-9:
+            self._start_step(obs, t, d, self.swing)
         return tau
 
-    def _start_step(self, obs: Observation, t: float, direction: int) -> None:
+    def _start_step(self, obs: Observation, t: float, direction: int, swing: int) -> None:
         prm = self.params
         a = self.arrays
         alpha, p, _o = forward_kinematics(obs.q, a.parent, a.a_par, a.a_chi)
-        sw = self.swing
+        sw = self.swing = swing
+        self.support_feet = tuple(f for f in range(len(a.feet)) if f != sw)
         sole = body_point(alpha, p, int(a.feet[sw]), a.sole_local[sw])
-        lo, hi = obs.support
-        pivot = hi - prm.cop_margin if direction > 0 else lo + prm.cop_margin
+        lo = min(body_point(alpha, p, int(a.feet[f]), a.heel_local[f])[0]
+                 for f in self.support_feet)
+        hi = max(body_point(alpha, p, int(a.feet[f]), a.toe_local[f])[0]
+                 for f in self.support_feet)
+        # The IPM pivots where the CoP will be: under the capture point as far as the stance
+        # foot reaches (its toe or heel edge when the capture point is beyond it).
+        pivot = min(max(capture_point(obs.c, obs.cd), lo + prm.cop_margin), hi - prm.cop_margin)
         plan = plan_step(t, obs.c, obs.cd, pivot, (float(sole[0]), float(sole[1])), direction,
                          prm.step_duration, prm.clearance,
                          prm.max_step_fraction * self.leg_length,
@@ -276,6 +314,7 @@ class SteppingController:
         self.stance = self.support_feet
         self._k = 0
         self._violations = 0
+        self.swing_qp = self.swing_qps[sw]
         self.swing_qp.reset(None, None)
         self.swing_qp.p_des = pivot
 
@@ -328,13 +367,15 @@ class SteppingController:
             hq = obs.q[ROOT_DOF:]
             hqd = obs.qd[ROOT_DOF:]
             q_r[legs] = ik_now.q[ROOT_DOF:][legs]
-            qd_r[legs] = (ik_next.q[ROOT_DOF:][legs] - q_r[legs]) / h
-            # The QP's tracking law is k_t (q_r - q) + d_t (qd_r - qd) + qdd_r; the legs need
-            # the stiffer swing gains, so their qdd_r carries the difference.
+            qd_r[legs] = np.clip((ik_next.q[ROOT_DOF:][legs] - q_r[legs]) / h,
+                                 -MAX_REFERENCE_RATE, MAX_REFERENCE_RATE)
+            # The QP's tracking law is k_t (q_r - q) + d_t (qd_r - qd) + qdd_r; the swing leg
+            # needs the stiffer swing gains, so its qdd_r carries the difference.
             qdd_r = np.zeros_like(q_r)
-            sp = self.swing_params
-            qdd_r[legs] = ((prm.swing_stiffness - sp.k_t) * (q_r[legs] - hq[legs])
-                           + (prm.swing_damping - sp.d_t) * (qd_r[legs] - hqd[legs]))
+            sp = self.swing_qp.schedule.base
+            sw_leg = self.legs[self.swing]
+            qdd_r[sw_leg] = ((prm.swing_stiffness - sp.k_t) * (q_r[sw_leg] - hq[sw_leg])
+                             + (prm.swing_damping - sp.d_t) * (qd_r[sw_leg] - hqd[sw_leg]))
             self._ref.value = (q_r, qd_r, qdd_r)
             pos, vel, acc = plan.path.state(t)
             self.swing_qp.accel = acc
