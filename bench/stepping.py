@@ -1,11 +1,13 @@
 """Pushes near the CM with and without stepping (the stepping seed paper's Fig. 7 and 8).
 
     .venv/bin/python bench/stepping.py case --force 300 --duration 0.4 [--backward] [--stepping]
-    .venv/bin/python bench/stepping.py sweep --durations 0.1 0.2 0.4 --tol 5
+    .venv/bin/python bench/stepping.py grid --durations 0.1 0.2 0.4 --forces 100 700 50
 
-`case` prints one clip's outcome and, with stepping, the step (detection, lift-off,
+`case` prints one clip's outcome and, with stepping, the steps (detection, lift-off,
 touch-down, length, the QP's planned CoP inside the support at every swing solve);
-`sweep` bisects the largest survived push per duration, forward and backward, both ways.
+`grid` runs every force of a grid per duration and direction, with and without stepping, and
+prints which survived (with stepping the survived set is not an interval: a bisection would
+be wrong), the largest survived force, and the steps taken.
 """
 
 from __future__ import annotations
@@ -79,37 +81,41 @@ def main() -> None:
     c.add_argument("--backward", action="store_true")
     c.add_argument("--stepping", action="store_true")
     c.add_argument("--body", default="pelvis")
-    s = sub.add_parser("sweep")
-    s.add_argument("--durations", type=float, nargs="+", default=[0.1, 0.2, 0.4])
-    s.add_argument("--lo", type=float, default=50.0)
-    s.add_argument("--hi", type=float, default=800.0)
-    s.add_argument("--tol", type=float, default=5.0)
-    s.add_argument("--body", default="pelvis")
+    g = sub.add_parser("grid")
+    g.add_argument("--durations", type=float, nargs="+", default=[0.1, 0.2, 0.4])
+    g.add_argument("--forces", type=float, nargs=3, default=[100.0, 700.0, 50.0],
+                   metavar=("FIRST", "LAST", "STEP"))
+    g.add_argument("--body", default="pelvis")
     args = ap.parse_args()
     if args.cmd == "case":
         out, _ = run_case(args.force, args.duration, "backward" if args.backward else "forward",
                           args.stepping, args.body)
         print(json.dumps(out, indent=1))
         return
+    first, last, step = args.forces
+    forces = [first + k * step for k in range(int(round((last - first) / step)) + 1)]
     rows = []
     for dur in args.durations:
         for direction in ("forward", "backward"):
             for stepping in (False, True):
-                lo, hi = args.lo, args.hi
-                if run_case(lo, dur, direction, stepping, args.body)[0]["fell"]:
-                    best = None
-                else:
-                    while hi - lo > args.tol:
-                        mid = 0.5 * (lo + hi)
-                        if run_case(mid, dur, direction, stepping, args.body)[0]["fell"]:
-                            hi = mid
-                        else:
-                            lo = mid
-                    best = lo
-                rows.append((dur, direction, stepping, best))
+                survived, steps = [], {}
+                for f in forces:
+                    out, _ = run_case(f, dur, direction, stepping, args.body)
+                    if not out["fell"]:
+                        survived.append(f)
+                        steps[f] = [(round(r["lift_off"], 3), r["touchdown"] and
+                                     round(r["touchdown"], 3),
+                                     r["length"] and round(r["length"], 3))
+                                    for r in out.get("steps", [])]
+                best = max(survived) if survived else None
+                rows.append({"duration": dur, "direction": direction, "stepping": stepping,
+                             "survived": survived, "largest": best, "steps": steps})
                 print(f"duration {dur:g} s  {direction:8s}  stepping {str(stepping):5s}  "
-                      f"largest survived {best if best is None else round(best, 1)} N",
-                      flush=True)
+                      f"largest survived {best} N  survived {survived}", flush=True)
+                if stepping:
+                    for f, st in steps.items():
+                        print(f"    {f:g} N: steps (lift-off s, touch-down s, length m) {st}",
+                              flush=True)
     print(json.dumps(rows))
 
 
