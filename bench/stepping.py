@@ -1,7 +1,8 @@
 """Pushes near the CM with and without stepping (the stepping seed paper's Fig. 7 and 8).
 
     .venv/bin/python bench/stepping.py case --force 300 --duration 0.4 [--backward] [--stepping]
-    .venv/bin/python bench/stepping.py grid --durations 0.1 0.2 0.4 --forces 100 700 50
+    .venv/bin/python bench/stepping.py grid --durations 0.1 0.2 0.4 --forces 100 700 50 \
+        [--delay 0.2]
 
 `case` prints one clip's outcome and, with stepping, the steps (detection, lift-off,
 touch-down, length, the QP's planned CoP inside the support at every swing solve);
@@ -86,10 +87,14 @@ def main() -> None:
     g.add_argument("--forces", type=float, nargs=3, default=[100.0, 700.0, 50.0],
                    metavar=("FIRST", "LAST", "STEP"))
     g.add_argument("--body", default="pelvis")
+    for sp in (c, g):
+        sp.add_argument("--delay", type=float, default=None,
+                        help="the step controller's response_delay (s; default its own, 0)")
     args = ap.parse_args()
+    params = None if args.delay is None else SteppingParams(response_delay=args.delay)
     if args.cmd == "case":
         out, _ = run_case(args.force, args.duration, "backward" if args.backward else "forward",
-                          args.stepping, args.body)
+                          args.stepping, args.body, params)
         print(json.dumps(out, indent=1))
         return
     first, last, step = args.forces
@@ -100,7 +105,7 @@ def main() -> None:
             for stepping in (False, True):
                 survived, steps = [], {}
                 for f in forces:
-                    out, _ = run_case(f, dur, direction, stepping, args.body)
+                    out, _ = run_case(f, dur, direction, stepping, args.body, params)
                     if not out["fell"]:
                         survived.append(f)
                         steps[f] = [(round(r["lift_off"], 3), r["touchdown"] and

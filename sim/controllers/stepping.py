@@ -82,6 +82,7 @@ class SteppingParams:
     swing_damping: float = 40.0  # s^-1
     swing_weight: float = 3.0  # tracking weight of the swing leg's hinges
     stance_weight: float = 0.3  # tracking weight of the stance leg's hinges
+    upper_weight_scale: float = 0.1  # x the other hinges' tracking weights during the swing
     max_step_fraction: float = 0.7  # longest step, as a fraction of the leg length
     capture_offset: float = 0.0  # m: the foot lands this far short of the capture point
     touchdown_timeout: float = 0.25  # s after the planned touch-down: then balance is lost
@@ -213,8 +214,14 @@ class SteppingController:
         #: raised, the stance legs' lowered) and the QP itself.
         self.swing_qps: list[_PlannedMomentum] = []
         for sw in range(nf):
-            weights = {ch.hinge_names[j]: self.params.stance_weight
-                       for f in range(nf) if f != sw for j in self.legs[f]}
+            # The upper body is what keeps the ZMP in while the legs follow the IK (the paper's
+            # QP moves only the upper body): its tracking weights are scaled down.
+            leg_set = {j for leg in self.legs for j in leg}
+            w_file = base.weight_vector(ch)
+            weights = {ch.hinge_names[j]: float(w_file[j]) * self.params.upper_weight_scale
+                       for j in range(ch.n_hinges) if j not in leg_set}
+            weights.update({ch.hinge_names[j]: self.params.stance_weight
+                            for f in range(nf) if f != sw for j in self.legs[f]})
             weights.update({ch.hinge_names[j]: self.params.swing_weight for j in self.legs[sw]})
             prm = replace(base, cop_box=self.params.cop_margin,
                           weights={**base.weights, **weights})
