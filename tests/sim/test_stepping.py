@@ -231,16 +231,17 @@ def test_swing_qp_zmp_stays_inside_the_support_at_every_solve(stepped):
 
 def test_ipm_predicts_the_simulated_cm_path_of_a_small_step(stepped):
     """The plan made at lift-off (the push is over by then) against ODE's CM over the swing:
-    within 2.5 cm all along, and the CM's travel within 30 %."""
+    within 1.5 cm all along (measured 1.0 cm), and the CM's travel within 20 % (8.4 cm in ODE,
+    7.3 cm predicted)."""
     sim, ev = stepped
     rec = sim.controller.steps[0]
     t = np.asarray(ev.traces.t)
     k = (t >= rec.start) & (t <= rec.touchdown)
     pred = np.array([rec.plan.path.state(x)[0] for x in t[k]])
     cm = np.asarray(ev.traces.cm)[k]
-    assert np.abs(pred[:, 0] - cm[:, 0]).max() < 0.025
+    assert np.abs(pred[:, 0] - cm[:, 0]).max() < 0.015
     travel_sim, travel_ipm = cm[-1, 0] - cm[0, 0], pred[-1, 0] - pred[0, 0]
-    assert travel_sim > 0.05 and abs(travel_ipm / travel_sim - 1.0) < 0.3
+    assert travel_sim > 0.05 and abs(travel_ipm / travel_sim - 1.0) < 0.2
 
 
 def test_stepping_is_deterministic(stepped):
