@@ -1,4 +1,4 @@
-"""Balance by stepping (the stepping seed paper): feet planted while possible, one step when not.
+"""Balance by stepping (the stepping seed paper): feet planted while possible, a step when not.
 
 Phases (`SteppingController.phase`):
 
@@ -7,21 +7,28 @@ Phases (`SteppingController.phase`):
   support: while it is no further than `capture_margin` beyond the toe or heel the feet stay
   planted.
 * "pending": xi is beyond an edge. The feet-fixed controller goes on balancing; if xi comes back
-  the step is called off. Otherwise the step starts `response_delay` s after xi first left (the
-  paper's 0.2 s delay of a human's response).
-* "swing": the last foot of the character's `feet` swings, the others stay planted (their
-  constraint rows only: the observation's stance). The step is planned once, at its start
-  (`sim.ipm.plan_step`): the IPM pivoting on the stance foot's edge gives the CM's path over the
-  swing and the capture point at touch-down; the swing foot's sole centre lands there (at most
-  `max_step_fraction` of the leg length away). At every QP solve the whole-body reference comes
-  from inverse kinematics (`sim.ik.solve_ik`: stance foot fixed and flat, CM at the IPM's, the
-  swing foot on its planned path, flat) and the momentum QP balances it with the IPM's CM
-  acceleration as its linear-momentum feed-forward, the CoP aimed at the IPM's pivot, and the
-  hard CoP (ZMP) constraint keeping the planned CoP `cop_margin` inside the stance foot.
-* "landed": the swing foot touched the ground (a heel or toe within the contact margin after
-  half the swing). Both feet are in stance, the support runs from the rear heel to the front
-  toe, and a feet-fixed momentum controller takes over, its legs' reference the posture (from
-  inverse kinematics) that puts the CM over the middle of that wider support.
+  the step is called off. Otherwise the step starts `response_delay` s after xi first left (0 by
+  default; the paper's 0.2 s delay of a human's response is the option). In either phase a
+  failure of the feet-fixed controller starts the step at once, towards xi.
+* "swing": one foot swings (the first step: the last of the character's `feet`; a follow-up:
+  the foot left behind), the others stay planted (their constraint rows only: the
+  observation's stance). The IPM (`sim.ipm.plan_step`, pivoting where the CoP will be: xi
+  clamped to the stance foot) gives the CM's path over the swing and the capture point at
+  touch-down, where the swing foot's sole centre lands (at most `max_step_fraction` of the leg
+  length away); the plan is re-made from the measured CM at every swing QP solve
+  (`sim.ipm.replan_step`), since a push may still act. At every solve the whole-body reference
+  comes from inverse kinematics (`sim.ik.solve_ik`: stance foot fixed, CM at the IPM's, the
+  swing foot on its path, flat) and the momentum QP balances it with the IPM's CM acceleration
+  as its linear-momentum feed-forward, the CoP aimed at the pivot, the hard CoP (ZMP)
+  constraint `cop_margin` inside the stance foot, and the upper body's tracking weights scaled
+  down so that it, not the legs, keeps the ZMP in (`upper_weight_scale`).
+* "landed": the swing foot is flat on the ground (heel and toe within the contact margin,
+  after half the swing). Both feet are in stance, the support runs from the rear heel to the
+  front toe, and a feet-fixed momentum controller takes over: its legs' reference goes to the
+  posture (from inverse kinematics) that puts the CM over the middle of that wider support, its
+  QP keeps the CoP inside it, and the support wrench is shared between the feet by
+  `sim.dynamics.inverse_dynamics_feet`. If it fails, the foot left behind steps (at most
+  `max_steps` steps in a clip).
 
 Nothing here names a joint: the legs are the hinge chains between the root and each foot.
 """
@@ -72,13 +79,13 @@ class SteppingParams:
     """Settings of the step (units in the names' comments)."""
 
     #: s, from the capture point leaving the support to the step; the stepping paper's 0.2 s
-    #: is an option (docs/physics.md: with it the step starts too late here)
+    #: is an option (measured in docs/benchmarks.md, "Stepping")
     response_delay: float = 0.0
     capture_margin: float = 0.0  # m, how far beyond an edge the capture point may go unstepped
     step_duration: float = 0.3  # s, planned swing time
     clearance: float = 0.05  # m, the swing foot's lift at mid-swing
     cop_margin: float = 0.02  # m, the QP's CoP (ZMP) kept this far inside the stance foot
-    swing_stiffness: float = 400.0  # s^-2, the legs' tracking stiffness during the swing
+    swing_stiffness: float = 400.0  # s^-2, the swing leg's tracking stiffness
     swing_damping: float = 40.0  # s^-1
     swing_weight: float = 3.0  # tracking weight of the swing leg's hinges
     stance_weight: float = 0.3  # tracking weight of the stance leg's hinges
