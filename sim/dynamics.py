@@ -14,6 +14,7 @@ gyroscopic term in the plane.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -316,6 +317,67 @@ WRENCH_OK, WRENCH_NO_NORMAL_FORCE, WRENCH_FRICTION_CONE, WRENCH_COP_OUTSIDE = 0,
 WRENCH_REASONS = ("", "no_normal_force", "friction_cone", "cop_outside_support")
 
 
+def inverse_dynamics_feet(M: np.ndarray, h: np.ndarray, Js: np.ndarray, qdd: np.ndarray,
+                          points: np.ndarray, sole_x: np.ndarray, margin: float
+                          ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Inverse dynamics for stance feet apart (after a step), the support wrench shared between
+    them physically instead of by least norm.
+
+    The root rows fix the total ground force (F_x, F_y) and its moment, hence the total CoP p
+    (`points`: heel, toe per stance foot; the soles on the ground). With p between the rear
+    and the front foot's sole centres the force is split between the feet by the lever rule,
+    each foot's CoP at its sole centre (both feet loaded, neither tipping); with p beyond one
+    sole centre that foot carries it all, its CoP at p (kept `margin` m inside its heel and
+    toe). The least-norm wrench of `inverse_dynamics`
+    would instead make the moment from foot torques (a couple costs less, in N m, than shifting
+    weight between feet 0.3 m apart), i.e. each foot's own CoP beyond its toe or heel, and
+    the feet tip. Returns (tau, f, p) with f per foot (fx, fy, torque about its sole centre)."""
+    n = M.shape[0]
+    r = M[:ROOT_DOF] @ qdd + h[:ROOT_DOF]
+    nf = len(sole_x)
+    heel = points[0::2, 0]
+    toe = points[1::2, 0]
+    ys = 0.5 * (points[0::2, 1] + points[1::2, 1])
+    # Root rows per foot: fx, fy, and (s_x - o_x) fy - (s_y - o_y) fx + torque = r[2]; o_x, o_y
+    # follow from any foot's rows of Js (its sole-centre point Jacobian's root-angle column).
+    ox = sole_x[0] - Js[1, 2]
+    oy = ys[0] + Js[0, 2]
+    fx_tot, fy_tot = float(r[0]), float(r[1])
+    f = np.zeros(3 * nf)
+    if fy_tot <= 0.0:
+        p = math.nan
+        shares = np.full(nf, 1.0 / nf)
+        cops = sole_x.copy()
+    else:
+        moment_o = float(r[2]) + ox * fy_tot - oy * fx_tot  # about the world origin
+        p = (moment_o + float(ys @ np.full(nf, fx_tot / nf))) / fy_tot
+        shares = np.zeros(nf)
+        order = np.argsort(sole_x)
+        rear, front = int(order[0]), int(order[-1])
+        cops = sole_x.copy()
+        if sole_x[rear] <= p <= sole_x[front] and sole_x[front] - sole_x[rear] > 1e-9:
+            a = (sole_x[front] - p) / (sole_x[front] - sole_x[rear])
+            shares[rear], shares[front] = a, 1.0 - a
+        else:
+            k = rear if p < sole_x[rear] else front
+            shares[k] = 1.0
+            cops[k] = min(max(p, heel[k] + margin), toe[k] - margin)
+    for k in range(nf):
+        fyk = shares[k] * fy_tot
+        fxk = shares[k] * fx_tot
+        f[3 * k] = fxk
+        f[3 * k + 1] = fyk
+        f[3 * k + 2] = (cops[k] - sole_x[k]) * fyk
+    # The moment the shares leave over (p clamped, or the fx lever arms) goes to the feet's
+    # torques equally, so that the root rows hold exactly.
+    resid = float(r[2]) - sum(
+        (sole_x[k] - ox) * f[3 * k + 1] - (ys[k] - oy) * f[3 * k] + f[3 * k + 2] for k in range(nf))
+    for k in range(nf):
+        f[3 * k + 2] += resid / nf
+    tau = M[ROOT_DOF:] @ qdd + h[ROOT_DOF:] - np.ascontiguousarray(Js[:, ROOT_DOF:n]).T @ f
+    return tau, f, p
+
+
 @njit(cache=True)
 def checked_inverse_dynamics(M, h, Js, qdd, sole_x, lo, hi, mu):
     """`inverse_dynamics` with the support wrench checked:
@@ -338,3 +400,20 @@ def checked_inverse_dynamics(M, h, Js, qdd, sole_x, lo, hi, mu):
     if cop < lo or cop > hi:
         return tau, WRENCH_COP_OUTSIDE, cop
     return tau, WRENCH_OK, cop
+
+
+def checked_inverse_dynamics_feet(M: np.ndarray, h: np.ndarray, Js: np.ndarray,
+                                  qdd: np.ndarray, points: np.ndarray, sole_x: np.ndarray,
+                                  lo: float, hi: float, mu: float, margin: float
+                                  ) -> tuple[np.ndarray, int, float]:
+    """`inverse_dynamics_feet` with the checks of `checked_inverse_dynamics`."""
+    tau, f, p = inverse_dynamics_feet(M, h, Js, qdd, points, sole_x, margin)
+    fy = float(f[1::3].sum())
+    fx = float(f[0::3].sum())
+    if fy <= 0.0:
+        return tau, WRENCH_NO_NORMAL_FORCE, math.nan
+    if abs(fx) > mu * fy:
+        return tau, WRENCH_FRICTION_CONE, p
+    if p < lo or p > hi:
+        return tau, WRENCH_COP_OUTSIDE, p
+    return tau, WRENCH_OK, p

@@ -6,7 +6,8 @@ at 1 ms steps. The loop only coordinates: observe (state and model terms), check
 act (the active controller's torques), task events, step, measure, record.
 
 Measurements, every step: the centre of pressure p(t) from the feet's contact feedback, the
-support centre s(t) (middle of the feet's heel-toe interval), the CP error e = p - s. The
+support centre s(t) (middle of the stance feet's heel-toe interval: both feet, or the
+support foot while the other swings; `Controller.stance`), the CP error e = p - s. The
 objective is the 2-norm of e over the steps that had ground contact (metres), plus the task's
 penalty (e.g. a ball not caught).
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from sim.character import ROOT_DOF, Character
 from sim.controllers import FallController
-from sim.controllers.base import Cmrt, Controller, Observation
+from sim.controllers.base import Cmrt, Controller, Observation, stance_terms
 from sim.controllers.registry import ControllerContext, build_controller
 from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics, step_model
 from sim.evaluation import Evaluation
@@ -154,6 +155,7 @@ class Rollout:
         active.reset(None, cmrt)
         events = task.events
         foot_of_point = np.repeat(ch.feet, 2).tolist()
+        n_feet = len(ch.feet)
         cm_floor = FALL_CM_FRACTION * self.cm0[1]
         rec = Recorder(n_steps, phys) if traces else None
         sq_sum = 0.0
@@ -179,6 +181,12 @@ class Rollout:
                                           f"t = {t:.3f} s ({why})")
             (M, h, c, cd, A_L, A_H, Js, pts, sole_x, lo, hi,
              clearance) = step_model(q, qd, *margs)
+            stance = getattr(active, "stance", None)
+            if stance is not None:
+                Js, obs_pts, sole_x, (lo, hi) = stance_terms(Js, pts, sole_x, (lo, hi), stance,
+                                                             n_feet)
+            else:
+                obs_pts = pts
             s = 0.5 * (lo + hi)
             physical = None
             if clearance < 0.0:
@@ -190,7 +198,8 @@ class Rollout:
                     fall_time, fall_reason = t, physical
                     direction = fall_direction(c, cd, s)
                 break
-            obs = Observation(q, qd, M, h, c, cd, A_L, A_H, Js, pts, sole_x, (lo, hi))
+            obs = Observation(q, qd, M, h, c, cd, A_L, A_H, Js, obs_pts, sole_x, (lo, hi),
+                              stance)
             tau = active.act(obs, t)
             if not lost:
                 c_ref = balance.c_ref

@@ -9,6 +9,10 @@ Contract of a `Controller`:
     the physics clamps them to the character's torque limits.
   * `lost` is None while the controller holds balance, else a short reason: the rollout then
     hands over to the fall controller. A controller never steps the world or reads ODE.
+  * optional `stance`: the indices (into `character.feet`) of the feet the controller treats as
+    planted for the next step, None for every foot. The rollout builds the observation's `Js`,
+    `points`, `sole_x` and `support` from those feet only (`stance_terms`), so a swing foot's
+    constraint rows are dropped; a controller without the attribute plants every foot.
   * `c_ref` is the CM reference (x in m, vertical displacement in m) of the last `act`, what
     the recording shows beside the CM (a controller without a CM target of its own reports
     the support centre plus the CMRT displacement it follows).
@@ -39,10 +43,32 @@ class Observation:
     cd: np.ndarray  # (2,) its velocity
     A_L: np.ndarray  # linear momentum rows
     A_H: np.ndarray  # angular momentum row about the CoM
-    Js: np.ndarray  # stance-feet constraint Jacobian
-    points: np.ndarray  # (k, 2) heel/toe points of the feet
-    sole_x: np.ndarray  # sole centres x
-    support: tuple[float, float]  # (back edge x, front edge x) of the support
+    Js: np.ndarray  # stance-feet constraint Jacobian (3 rows per stance foot)
+    points: np.ndarray  # (2 k, 2) heel/toe points of the stance feet
+    sole_x: np.ndarray  # sole centres x of the stance feet
+    support: tuple[float, float]  # (back edge x, front edge x) of the stance feet's support
+    #: Indices into `character.feet` of the stance feet (those the rows above describe);
+    #: None: every foot (double support, the feet-fixed default).
+    stance: tuple[int, ...] | None = None
+
+
+def stance_terms(Js: np.ndarray, points: np.ndarray, sole_x: np.ndarray,
+                 support: tuple[float, float], stance: tuple[int, ...] | None,
+                 n_feet: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, float]]:
+    """(Js, points, sole_x, support) of the stance feet only, from the every-foot terms of
+    `sim.dynamics.step_model` (3 rows of Js, 2 points (heel, toe) per foot). With every foot in
+    stance (or None) the arrays are returned as they are, so double support is unchanged bit
+    for bit. The support spans the stance feet's heels and toes: both feet down at different
+    x give one interval from the rear heel to the front toe."""
+    if stance is None or len(stance) == n_feet:
+        return Js, points, sole_x, support
+    if not stance:
+        raise ValueError("a stance needs at least one foot")
+    rows = [3 * f + r for f in stance for r in range(3)]
+    pts = points[[2 * f + r for f in stance for r in range(2)]]
+    lo = min(float(points[2 * f, 0]) for f in stance)
+    hi = max(float(points[2 * f + 1, 0]) for f in stance)
+    return Js[rows], pts, sole_x[list(stance)], (lo, hi)
 
 
 class Controller(Protocol):

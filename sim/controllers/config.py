@@ -29,7 +29,6 @@ import numpy as np
 from pydantic import (
     Field,
     SerializerFunctionWrapHandler,
-    field_validator,
     model_serializer,
     model_validator,
 )
@@ -83,8 +82,10 @@ class ControllerConfig(StrictModel):
 class MomentumConfig(ControllerConfig):
     """`controller: {type: momentum, <gain>: value, ...}`: the momentum QP
     (sim.controllers.momentum) with the named gains and weights overriding ControllerParams'
-    defaults. `stepping` is the step controller's switch (not yet available: true is
-    rejected until the stepping controller exists)."""
+    defaults. `stepping: true` adds the step controller (sim.controllers.stepping): feet
+    planted while the capture point stays in the support, one step when it does not;
+    `response_delay` (s, default 0; the stepping paper's 0.2 is an option) is how long after
+    the capture point leaves the support the step starts."""
 
     type: Literal["momentum"] = "momentum"
     stepping: bool = False
@@ -98,6 +99,7 @@ class MomentumConfig(ControllerConfig):
     b_t: _Gain = None
     b_p: _Gain = None
     cop_box: _Gain = None
+    response_delay: Annotated[float, Field(ge=0.0, le=1.0)] | None = None
 
     schedules_gains: ClassVar[bool] = True
 
@@ -111,13 +113,11 @@ class MomentumConfig(ControllerConfig):
                     raise ValueError(f"unknown gain {name!r}; gains are {', '.join(GAIN_NAMES)}")
         return data
 
-    @field_validator("stepping")
-    @classmethod
-    def _stepping_not_yet(cls, v: bool) -> bool:
-        if v:
-            raise ValueError("stepping is not yet available (the stepping controller is not "
-                             "part of this version); leave it false")
-        return v
+    @model_validator(mode="after")
+    def _delay_needs_stepping(self) -> MomentumConfig:
+        if self.response_delay is not None and not self.stepping:
+            raise ValueError("response_delay: applies only with stepping: true")
+        return self
 
     @model_serializer(mode="wrap")
     def _drop_unset_gains(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
@@ -138,6 +138,13 @@ class MomentumConfig(ControllerConfig):
         for s in spec.schedule:
             start, end = spec.schedule_window(s)
             entries.append((start, end, s.ramp, dict(s.scale), dict(s.set)))
-        return MomentumController(context.character, GainScheduler(params, entries),
-                                  context.trajectory, context.arrays, dt=context.dt,
-                                  mu=context.mu)
+        schedule = GainScheduler(params, entries)
+        if self.stepping:
+            from sim.controllers.stepping import SteppingController, SteppingParams
+
+            step = (SteppingParams() if self.response_delay is None
+                    else SteppingParams(response_delay=self.response_delay))
+            return SteppingController(context.character, schedule, context.trajectory,
+                                      context.arrays, dt=context.dt, mu=context.mu, params=step)
+        return MomentumController(context.character, schedule, context.trajectory,
+                                  context.arrays, dt=context.dt, mu=context.mu)

@@ -43,6 +43,7 @@ from sim.dynamics import (
     WRENCH_REASONS,
     ModelArrays,
     checked_inverse_dynamics,
+    checked_inverse_dynamics_feet,
     momentum_bias,
 )
 from sim.trajectory import PoseTrajectory, ease
@@ -56,6 +57,8 @@ WRENCH_VIOLATION_LIMIT = 0.25
 #: ... or when a heel or toe has lifted this high (m): the foot is rotating about an edge and
 #: the foot-fixed model no longer holds.
 FOOT_LIFT_LIMIT = 0.03
+#: m: with the feet apart, each foot's own CoP is kept this far inside its heel and toe.
+FOOT_COP_MARGIN = 0.01
 CMRT_VELOCITY_STEP = 1e-3  # s, central difference for the CMRT's velocity
 
 
@@ -138,6 +141,16 @@ class GainScheduler:
         return prm
 
 
+def stance_bias(a: ModelArrays, obs: Observation) -> tuple[np.ndarray, float, np.ndarray]:
+    """`sim.dynamics.momentum_bias` at the observed state, its foot rows (b_S) those of the
+    observation's stance feet only (a swing foot has no constraint)."""
+    b_L, b_H, b_S = momentum_bias(obs.q, obs.qd, a.parent, a.a_par, a.a_chi, a.mass, a.feet,
+                                  a.sole_local)
+    if obs.stance is not None and len(obs.stance) != len(a.feet):
+        b_S = b_S[[3 * f + r for f in obs.stance for r in range(3)]]
+    return b_L, b_H, b_S
+
+
 def _as_pair(value: object) -> tuple[float, float]:
     if isinstance(value, tuple | list | np.ndarray):
         return float(value[0]), float(value[1]) if len(value) > 1 else 0.0
@@ -173,6 +186,12 @@ class MomentumController:
         self._k = 0
         self._violation_steps = 0
         self._disp = (0.0, 0.0)
+        #: True: the support wrench is shared between the stance feet by
+        #: `sim.dynamics.inverse_dynamics_feet` (feet apart, after a step); False: the plain
+        #: least-norm wrench (feet side by side, the default).
+        self.feet_apart = False
+        #: m: a stance heel or toe this high loses balance (FOOT_LIFT_LIMIT by default).
+        self.foot_lift_limit = FOOT_LIFT_LIMIT
 
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None:
@@ -197,19 +216,21 @@ class MomentumController:
                 vel = ((nxt[0] - prv[0]) / (2 * CMRT_VELOCITY_STEP), 0.0)
             s = 0.5 * (lo + hi)
             self.c_ref = (s + self._disp[0], self._disp[1])
-            a = self.arrays
-            q, qd = obs.q, obs.qd
-            self.solve(t, q, qd, obs.c, obs.cd, obs.A_L, obs.A_H, obs.Js, (lo, hi), self.c_ref,
-                       vel, lambda: momentum_bias(q, qd, a.parent, a.a_par, a.a_chi, a.mass,
-                                                  a.feet, a.sole_local))
+            self.solve(t, obs.q, obs.qd, obs.c, obs.cd, obs.A_L, obs.A_H, obs.Js, (lo, hi),
+                       self.c_ref, vel, lambda: stance_bias(self.arrays, obs))
         self._k += 1
-        tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.qdd, obs.sole_x,
-                                                   lo, hi, self.mu)
+        if self.feet_apart and len(obs.sole_x) > 1:
+            tau, code, _cop = checked_inverse_dynamics_feet(
+                obs.M, obs.h, obs.Js, self.qdd, obs.points, obs.sole_x, lo, hi, self.mu,
+                FOOT_COP_MARGIN)
+        else:
+            tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.qdd,
+                                                       obs.sole_x, lo, hi, self.mu)
         violations = self._violation_steps + 1 if code != WRENCH_OK else 0
         self._violation_steps = violations
         if code == WRENCH_NO_NORMAL_FORCE or violations * self.dt > WRENCH_VIOLATION_LIMIT:
             self.lost = WRENCH_REASONS[code]
-        elif max(obs.points[:, 1].tolist()) > FOOT_LIFT_LIMIT:  # (the fastest max of 4)
+        elif max(obs.points[:, 1].tolist()) > self.foot_lift_limit:  # stance heels and toes
             self.lost = "foot_lift"
         return tau
 

@@ -55,7 +55,10 @@ def test_no_controller_and_empty_dict_are_the_default_momentum():
     ({"type": "momentum", "k_l": -1.0}, "controller.k_l", "greater than 0"),
     ({"type": "momentum", "k_l": "20"}, "controller.k_l", "valid number"),
     ({"type": "momentum", "stepping": 1}, "controller.stepping", "valid boolean"),
-    ({"type": "momentum", "stepping": True}, "controller.stepping", "not yet available"),
+    ({"type": "momentum", "response_delay": 0.2}, "controller",
+     "response_delay: applies only with stepping: true"),
+    ({"type": "momentum", "stepping": True, "response_delay": -0.1},
+     "controller.response_delay", "greater than or equal to 0"),
     ({"cop_box": 10000.0}, "controller.cop_box", "below half the support length"),
 ])
 def test_bad_controller_block_names_field_and_rule(block, field, rule):

@@ -1,0 +1,128 @@
+"""Pushes near the CM with and without stepping (the stepping seed paper's Fig. 7 and 8).
+
+    .venv/bin/python bench/stepping.py case --force 300 --duration 0.4 [--backward] [--stepping]
+    .venv/bin/python bench/stepping.py grid --durations 0.1 0.2 0.4 --forces 100 700 50 \
+        [--delay 0.2]
+
+`case` prints one clip's outcome and, with stepping, the steps (detection, lift-off,
+touch-down, length, the QP's planned CoP inside the support at every swing solve);
+`grid` runs every force of a grid per duration and direction, with and without stepping, and
+prints which survived (with stepping the survived set is not an interval: a bisection would
+be wrong), the largest survived force, and the steps taken.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from sim.controllers.stepping import SteppingController, SteppingParams  # noqa: E402
+from sim.physics import DT, FRICTION_MU  # noqa: E402
+from sim.rollout import Rollout  # noqa: E402
+from sim.spec import parse_spec  # noqa: E402
+
+PUSH_START = 1.0  # s
+DECAY = 2.5  # s after the push
+
+
+def push_spec(force: float, duration: float, direction: str, body: str,
+              stepping: bool) -> dict:
+    return {"name": "step_push", "clip": {"preparation": PUSH_START, "duration": duration,
+                                          "decay": DECAY},
+            "task": {"type": "push", "force": force, "direction": direction, "body": body},
+            "controller": {"type": "momentum", "stepping": stepping}}
+
+
+def rollout(force: float, duration: float, direction: str, stepping: bool, body: str,
+            params: SteppingParams | None = None) -> Rollout:
+    sim = Rollout(parse_spec(push_spec(force, duration, direction, body, stepping)))
+    if stepping and params is not None:
+        sim.controller = SteppingController(sim.character, sim.controller.feet_fixed.schedule,
+                                            sim.trajectory, sim.arrays, dt=DT, mu=FRICTION_MU,
+                                            params=params)
+    return sim
+
+
+def run_case(force, duration, direction, stepping, body, params=None, traces=False):
+    sim = rollout(force, duration, direction, stepping, body, params)
+    try:
+        ev = sim.run(None, traces=traces)
+    finally:
+        sim.close()
+    out = {"force": force, "duration": duration, "direction": direction, "stepping": stepping,
+           "fell": ev.fell, "fall_time": ev.fall_time, "fall_reason": ev.fall_reason,
+           "objective": ev.objective}
+    if stepping:
+        steps = []
+        for r in sim.controller.steps:
+            inside = [lo - 1e-9 <= cop <= hi + 1e-9 for _t, cop, lo, hi, _f in r.solves]
+            steps.append({
+                "detected": r.detected, "lift_off": r.start, "touchdown": r.touchdown,
+                "direction": r.direction, "planned_land_x": r.plan.land[0],
+                "planned_length": r.plan.land[0] - r.plan.start[0], "length": r.length,
+                "capture_point_at_land": r.plan.capture_at_land,
+                "solves": len(r.solves), "zmp_inside": sum(inside),
+                "ik_max_error": max((e for _t, e in r.ik_error), default=math.nan)})
+        out["steps"] = steps
+        out["phase"] = sim.controller.phase
+    return out, ev
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("case")
+    c.add_argument("--force", type=float, default=300.0)
+    c.add_argument("--duration", type=float, default=0.4)
+    c.add_argument("--backward", action="store_true")
+    c.add_argument("--stepping", action="store_true")
+    c.add_argument("--body", default="pelvis")
+    g = sub.add_parser("grid")
+    g.add_argument("--durations", type=float, nargs="+", default=[0.1, 0.2, 0.4])
+    g.add_argument("--forces", type=float, nargs=3, default=[100.0, 700.0, 50.0],
+                   metavar=("FIRST", "LAST", "STEP"))
+    g.add_argument("--body", default="pelvis")
+    for sp in (c, g):
+        sp.add_argument("--delay", type=float, default=None,
+                        help="the step controller's response_delay (s; default its own, 0)")
+    args = ap.parse_args()
+    params = None if args.delay is None else SteppingParams(response_delay=args.delay)
+    if args.cmd == "case":
+        out, _ = run_case(args.force, args.duration, "backward" if args.backward else "forward",
+                          args.stepping, args.body, params)
+        print(json.dumps(out, indent=1))
+        return
+    first, last, step = args.forces
+    forces = [first + k * step for k in range(int(round((last - first) / step)) + 1)]
+    rows = []
+    for dur in args.durations:
+        for direction in ("forward", "backward"):
+            for stepping in (False, True):
+                survived, steps = [], {}
+                for f in forces:
+                    out, _ = run_case(f, dur, direction, stepping, args.body, params)
+                    if not out["fell"]:
+                        survived.append(f)
+                        steps[f] = [(round(r["lift_off"], 3), r["touchdown"] and
+                                     round(r["touchdown"], 3),
+                                     r["length"] and round(r["length"], 3))
+                                    for r in out.get("steps", [])]
+                best = max(survived) if survived else None
+                rows.append({"duration": dur, "direction": direction, "stepping": stepping,
+                             "survived": survived, "largest": best, "steps": steps})
+                print(f"duration {dur:g} s  {direction:8s}  stepping {str(stepping):5s}  "
+                      f"largest survived {best} N  survived {survived}", flush=True)
+                if stepping:
+                    for f, st in steps.items():
+                        print(f"    {f:g} N: steps (lift-off s, touch-down s, length m) {st}",
+                              flush=True)
+    print(json.dumps(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,463 @@
+"""Balance by stepping (the stepping seed paper): feet planted while possible, a step when not.
+
+Phases (`SteppingController.phase`):
+
+* "feet_fixed": the momentum controller (`MomentumController`, unchanged) balances on both feet.
+  Every step the capture point xi of the CM (`sim.ipm.capture_point`) is compared with the
+  support: while it is no further than `capture_margin` beyond the toe or heel the feet stay
+  planted.
+* "pending": xi is beyond an edge. The feet-fixed controller goes on balancing; if xi comes back
+  the step is called off. Otherwise the step starts `response_delay` s after xi first left (0 by
+  default; the paper's 0.2 s delay of a human's response is the option). In either phase a
+  failure of the feet-fixed controller starts the step at once, towards xi.
+* "swing": one foot swings (the first step: the last of the character's `feet`; a follow-up:
+  the foot left behind), the others stay planted (their constraint rows only: the
+  observation's stance). The IPM (`sim.ipm.plan_step`, pivoting where the CoP will be: xi
+  clamped to the stance foot) gives the CM's path over the swing and the capture point at
+  touch-down, where the swing foot's sole centre lands (at most `max_step_fraction` of the leg
+  length away); the plan is re-made from the measured CM at every swing QP solve
+  (`sim.ipm.replan_step`), since a push may still act. At every solve the whole-body reference
+  comes from inverse kinematics (`sim.ik.solve_ik`: stance foot fixed, CM at the IPM's, the
+  swing foot on its path, flat) and the momentum QP balances it with the IPM's CM acceleration
+  as its linear-momentum feed-forward, the CoP aimed at the pivot, the hard CoP (ZMP)
+  constraint `cop_margin` inside the stance foot, and the upper body's tracking weights scaled
+  down so that it, not the legs, keeps the ZMP in (`upper_weight_scale`).
+* "landed": the swing foot is flat on the ground (heel and toe within the contact margin,
+  after half the swing). Both feet are in stance, the support runs from the rear heel to the
+  front toe, and a feet-fixed momentum controller takes over: its legs' reference goes to the
+  posture (from inverse kinematics) that puts the CM over the middle of that wider support, its
+  QP keeps the CoP inside it, and the support wrench is shared between the feet by
+  `sim.dynamics.inverse_dynamics_feet`. If it fails, the foot left behind steps (at most
+  `max_steps` steps in a clip).
+
+Nothing here names a joint: the legs are the hinge chains between the root and each foot.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from sim.character import ROOT_DOF, Character
+from sim.controllers.base import Cmrt, Observation
+from sim.controllers.momentum import (
+    FOOT_LIFT_LIMIT,
+    WRENCH_VIOLATION_LIMIT,
+    ControllerParams,
+    GainScheduler,
+    MomentumController,
+    stance_bias,
+)
+from sim.dynamics import (
+    GRAVITY,
+    WRENCH_NO_NORMAL_FORCE,
+    WRENCH_OK,
+    WRENCH_REASONS,
+    ModelArrays,
+    body_point,
+    checked_inverse_dynamics,
+    forward_kinematics,
+)
+from sim.ik import Target, leg_hinges, solve_ik
+from sim.ipm import StepPlan, capture_point, plan_step, replan_step, step_direction
+from sim.trajectory import PoseTrajectory
+
+#: A foot whose heel or toe is this low (m) touches the ground (the physics' contact margin).
+TOUCHDOWN_HEIGHT = 0.0005
+#: rad/s: the legs' reference rates (finite differences of two IK postures) are bounded so
+#: that an IK jump near a straight knee cannot command a violent acceleration.
+MAX_REFERENCE_RATE = 15.0
+#: The swing foot cannot land before this fraction of the planned swing (it starts on the
+#: ground).
+MIN_SWING_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class SteppingParams:
+    """Settings of the step (units in the names' comments)."""
+
+    #: s, from the capture point leaving the support to the step; the stepping paper's 0.2 s
+    #: is an option (measured in docs/benchmarks.md, "Stepping")
+    response_delay: float = 0.0
+    capture_margin: float = 0.0  # m, how far beyond an edge the capture point may go unstepped
+    step_duration: float = 0.3  # s, planned swing time
+    clearance: float = 0.05  # m, the swing foot's lift at mid-swing
+    cop_margin: float = 0.02  # m, the QP's CoP (ZMP) kept this far inside the stance foot
+    swing_stiffness: float = 400.0  # s^-2, the swing leg's tracking stiffness
+    swing_damping: float = 40.0  # s^-1
+    swing_weight: float = 3.0  # tracking weight of the swing leg's hinges
+    stance_weight: float = 0.3  # tracking weight of the stance leg's hinges
+    upper_weight_scale: float = 0.1  # x the other hinges' tracking weights during the swing
+    max_step_fraction: float = 0.7  # longest step, as a fraction of the leg length
+    capture_offset: float = 0.0  # m: the foot lands this far short of the capture point
+    touchdown_timeout: float = 0.25  # s after the planned touch-down: then balance is lost
+    #: m: the stance foot's heel or toe lifted this high during the swing loses balance (the
+    #: swing model holds the stance foot fixed; a foot rolling over its toe breaks it)
+    stance_lift_limit: float = 0.08
+    replan: bool = True  # re-plan the landing from the CM state at every swing QP solve
+    #: m: after landing, a heel or toe this high loses balance (the rear heel of a long step
+    #: rises as the CM passes over the front foot)
+    landed_lift_limit: float = FOOT_LIFT_LIMIT
+    swing_qp_period: float = 0.005  # s between the swing QP solves (feet-fixed: 1/60 s)
+    max_steps: int = 3  # steps in one clip (the first and the follow-ups)
+    landed_cop_margin: float = 0.02  # m, the CoP constraint of the QP after landing (0: off)
+    settle_time: float = 0.3  # s, the legs' reference goes from touch-down to the held posture
+
+
+@dataclass
+class StepRecord:
+    """What one step did: plan, timing, and the QP's planned CoP at every swing solve."""
+
+    detected: float  # s, the capture point first beyond the support
+    start: float  # s, lift-off
+    direction: int
+    plan: StepPlan
+    touchdown: float | None = None  # s
+    length: float | None = None  # m, sole-centre displacement of the swing foot at touch-down
+    land_x: float | None = None  # m, its sole centre at touch-down
+    solves: list[tuple[float, float, float, float, float]] = field(default_factory=list)
+    #: (t, planned CoP x, support lo, support hi, planned normal force N) per swing QP solve
+    ik_error: list[tuple[float, float]] = field(default_factory=list)
+    #: (t, |swing sole of the IK posture - planned position| m) per swing QP solve
+    replans: list[tuple[float, float, float]] = field(default_factory=list)
+    #: (t, landing x, capture point at touch-down) of every re-plan
+
+
+class _Reference:
+    """The swing QP's hinge reference, set before each solve: (q_r, qd_r, qdd_r)."""
+
+    def __init__(self, n_hinges: int):
+        self.value = (np.zeros(n_hinges), np.zeros(n_hinges), np.zeros(n_hinges))
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.value
+
+
+class _HeldLegs:
+    """A pose trajectory whose legs' hinges go from their state at touch-down (angles and
+    rates) to a held posture over `blend` s (cubic Hermite), then stay (after landing): the
+    feet-fixed QP then does not brake the legs' landing motion at once."""
+
+    def __init__(self, base: PoseTrajectory):
+        self.base = base
+        self.hinges: list[int] = []
+        self.start = self.rate = self.angles = np.zeros(0)
+        self.t0 = 0.0
+        self.blend = 1.0
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        q, qd, qdd = self.base(t)
+        if self.hinges:
+            q = q.copy()
+            qd = qd.copy()
+            qdd = qdd.copy()
+            T = self.blend
+            u = min(max((t - self.t0) / T, 0.0), 1.0)
+            h00, h10, h01 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2
+            d00, d10, d01 = 6 * u**2 - 6 * u, 3 * u**2 - 4 * u + 1, -6 * u**2 + 6 * u
+            e00, e10, e01 = 12 * u - 6, 6 * u - 4, -12 * u + 6
+            if u >= 1.0:
+                d00 = d10 = d01 = e00 = e10 = e01 = 0.0
+            p0, v0, p1 = self.start, self.rate, self.angles
+            q[self.hinges] = h00 * p0 + h10 * T * v0 + h01 * p1
+            qd[self.hinges] = (d00 * p0 + d10 * T * v0 + d01 * p1) / T
+            qdd[self.hinges] = (e00 * p0 + e10 * T * v0 + e01 * p1) / (T * T)
+        return q, qd, qdd
+
+
+class _PlannedMomentum(MomentumController):
+    """The momentum QP of the swing: its desired momentum rates follow the IPM plan (the CM
+    acceleration as a feed-forward, the CoP at the pivot) instead of holding still over the
+    support centre."""
+
+    accel = np.zeros(2)
+    p_des = 0.0
+
+    def desired_rates(self, prm: ControllerParams, c: np.ndarray, cd: np.ndarray,
+                      support: tuple[float, float], c_ref: tuple[float, float],
+                      cd_ref: tuple[float, float]) -> tuple[np.ndarray, float]:
+        m = self.mass
+        L = m * cd
+        ldot = np.array([
+            prm.k_l * m * (c_ref[0] - c[0]) + prm.d_l * (m * cd_ref[0] - L[0]) + m * self.accel[0],
+            -prm.d_l_vertical * L[1] + m * self.accel[1],
+        ])
+        F = ldot + np.array([0.0, m * GRAVITY])
+        return ldot, (self.p_des - c[0]) * F[1] + c[1] * F[0]
+
+
+class SteppingController:
+    """The momentum controller with stepping (module doc); the Controller protocol, with
+    `stance` (indices into the character's feet, None for all) read by the rollout."""
+
+    def __init__(self, character: Character, schedule: GainScheduler,
+                 trajectory: PoseTrajectory, arrays: ModelArrays | None = None,
+                 dt: float = 0.001, mu: float = 1.0, params: SteppingParams | None = None):
+        self.character = character
+        self.params = params or SteppingParams()
+        self.arrays = arrays or ModelArrays.from_character(character)
+        self.dt = dt
+        self.mu = mu
+        self.trajectory = trajectory
+        ch = character
+        nf = len(ch.feet)
+        if nf < 2:
+            raise ValueError("stepping needs a character with at least two feet")
+        #: The first step swings the last foot (feet side by side: any one would do); a
+        #: follow-up step swings the foot left behind.
+        self.swing = nf - 1
+        self.support_feet = tuple(range(nf - 1))
+        self.legs = [leg_hinges(ch, int(f)) for f in ch.feet]
+        top = self.legs[self.swing][0] + 1  # the body below the leg's first hinge
+        sole0 = 0.5 * (ch.heel0[self.swing] + ch.toe0[self.swing])
+        self.leg_length = float(np.hypot(*(ch.anchor0[top] - sole0)))
+        self.feet_fixed = MomentumController(ch, schedule, trajectory, self.arrays, dt, mu)
+        self.qp_every = max(1, int(round(self.params.swing_qp_period / dt)))
+        base = schedule.base
+        self._ref = _Reference(ch.n_hinges)
+        #: Per swing foot: the swing QP's gains (CoP constraint on, that leg's tracking weight
+        #: raised, the stance legs' lowered) and the QP itself.
+        self.swing_qps: list[_PlannedMomentum] = []
+        for sw in range(nf):
+            # The upper body is what keeps the ZMP in while the legs follow the IK (the paper's
+            # QP moves only the upper body): its tracking weights are scaled down.
+            leg_set = {j for leg in self.legs for j in leg}
+            w_file = base.weight_vector(ch)
+            weights = {ch.hinge_names[j]: float(w_file[j]) * self.params.upper_weight_scale
+                       for j in range(ch.n_hinges) if j not in leg_set}
+            weights.update({ch.hinge_names[j]: self.params.stance_weight
+                            for f in range(nf) if f != sw for j in self.legs[f]})
+            weights.update({ch.hinge_names[j]: self.params.swing_weight for j in self.legs[sw]})
+            prm = replace(base, cop_box=self.params.cop_margin,
+                          weights={**base.weights, **weights})
+            self.swing_qps.append(_PlannedMomentum(ch, GainScheduler(prm, []), self._ref,
+                                                   self.arrays, dt, mu))
+        self._held = _HeldLegs(trajectory)
+        landed = GainScheduler(replace(schedule.base, cop_box=self.params.landed_cop_margin),
+                               schedule.entries) if self.params.landed_cop_margin > 0 else schedule
+        self.landed_qp = MomentumController(ch, landed, self._held, self.arrays, dt, mu)
+        # The feet are apart after the step: share the wrench by weight, not by foot torques.
+        self.landed_qp.feet_apart = True
+        self.landed_qp.foot_lift_limit = self.params.landed_lift_limit
+        self.steps: list[StepRecord] = []
+        self.reset()
+
+    # ---- the Controller protocol ----------------------------------------------------------
+    def reset(self, observation: Observation | None = None,
+              reference: Cmrt | None = None) -> None:
+        self.reference = reference
+        self.feet_fixed.reset(observation, reference)
+        self.phase = "feet_fixed"
+        self.stance: tuple[int, ...] | None = None
+        self.lost: str | None = None
+        self.c_ref = self.feet_fixed.c_ref
+        self.steps = []
+        self._detected = 0.0
+        self._k = 0
+        self._violations = 0
+        self._plant: list[tuple[np.ndarray, float]] = []
+
+    def act(self, obs: Observation, t: float) -> np.ndarray:
+        """Hinge torques for this step (see the module doc for the phases)."""
+        if self.phase in ("feet_fixed", "pending"):
+            return self._feet_fixed(obs, t)
+        if self.phase == "swing":
+            return self._swing(obs, t)
+        tau = self.landed_qp.act(obs, t)
+        self.c_ref = self.landed_qp.c_ref
+        if self.landed_qp.lost is not None:
+            # The feet-fixed balance over the wider support fails (typically the rear heel
+            # lifts as the CM runs on over the front foot): bring the foot left behind
+            # forward (or, stepping back, the front foot back) under the capture point.
+            xi = capture_point(obs.c, obs.cd)
+            d = 1 if xi >= 0.5 * sum(obs.support) else -1
+            if len(self.steps) < self.params.max_steps:
+                swing = int(np.argmin(d * np.asarray(obs.sole_x)))
+                self._start_step(obs, t, d, swing)
+            else:
+                self.lost = self.landed_qp.lost
+        return tau
+
+    # ---- phases ---------------------------------------------------------------------------
+    def _feet_fixed(self, obs: Observation, t: float) -> np.ndarray:
+        tau = self.feet_fixed.act(obs, t)
+        self.c_ref = self.feet_fixed.c_ref
+        prm = self.params
+        d = step_direction(capture_point(obs.c, obs.cd), obs.support, prm.capture_margin)
+        if self.phase == "feet_fixed" and d != 0:
+            self.phase, self._detected = "pending", t
+        elif self.phase == "pending" and d == 0:
+            self.phase = "feet_fixed"  # recovered in place: no step
+        if self.feet_fixed.lost is not None:
+            # The feet-fixed controller fails (a heel or toe lifts, its wrench inadmissible):
+            # step at once, towards the capture point (the paper's rule: stepping takes over
+            # when balance with the feet planted fails), delay or not.
+            if self.phase == "feet_fixed":
+                self._detected = t
+            xi = capture_point(obs.c, obs.cd)
+            self._start_step(obs, t, 1 if xi >= 0.5 * sum(obs.support) else -1, self.swing)
+        elif self.phase == "pending" and t - self._detected >= prm.response_delay - 1e-9:
+            self._start_step(obs, t, d, self.swing)
+        return tau
+
+    def _start_step(self, obs: Observation, t: float, direction: int, swing: int) -> None:
+        prm = self.params
+        a = self.arrays
+        alpha, p, _o = forward_kinematics(obs.q, a.parent, a.a_par, a.a_chi)
+        sw = self.swing = swing
+        self.support_feet = tuple(f for f in range(len(a.feet)) if f != sw)
+        sole = body_point(alpha, p, int(a.feet[sw]), a.sole_local[sw])
+        lo = min(body_point(alpha, p, int(a.feet[f]), a.heel_local[f])[0]
+                 for f in self.support_feet)
+        hi = max(body_point(alpha, p, int(a.feet[f]), a.toe_local[f])[0]
+                 for f in self.support_feet)
+        # The IPM pivots where the CoP will be: under the capture point as far as the stance
+        # foot reaches (its toe or heel edge when the capture point is beyond it).
+        pivot = min(max(capture_point(obs.c, obs.cd), lo + prm.cop_margin), hi - prm.cop_margin)
+        plan = plan_step(t, obs.c, obs.cd, pivot, (float(sole[0]), float(sole[1])), direction,
+                         prm.step_duration, prm.clearance,
+                         prm.max_step_fraction * self.leg_length,
+                         capture_offset=prm.capture_offset)
+        self._plant = [(body_point(alpha, p, int(a.feet[f]), a.sole_local[f]),
+                        float(alpha[int(a.feet[f])])) for f in self.support_feet]
+        self.steps.append(StepRecord(self._detected, t, direction, plan))
+        self._plan = plan
+        self.phase = "swing"
+        self.stance = self.support_feet
+        self._k = 0
+        self._violations = 0
+        self.swing_qp = self.swing_qps[sw]
+        self.swing_qp.reset(None, None)
+        self.swing_qp.p_des = pivot
+
+    def _targets(self, t: float) -> list[Target]:
+        """IK targets of the swing at time t: stance feet where they were planted, flat; the
+        CM on the IPM's path (x); the swing foot on its planned path, flat."""
+        a = self.arrays
+        plan = self._plan
+        out = []
+        for f, (sole, ang) in zip(self.support_feet, self._plant, strict=True):
+            b = int(a.feet[f])
+            out.append(Target("point", (float(sole[0]), float(sole[1])), b,
+                              tuple(a.sole_local[f])))
+            out.append(Target("angle", (ang,), b))
+        pos, _v, _acc = plan.path.state(t)
+        out.append(Target("cm", (float(pos[0]),)))
+        b = int(a.feet[self.swing])
+        out.append(Target("point", plan.foot(t), b, tuple(a.sole_local[self.swing])))
+        out.append(Target("angle", (0.0,), b))
+        return out
+
+    def _leg_dofs(self) -> list[int]:
+        return [0, 1, 2] + [ROOT_DOF + j for leg in self.legs for j in leg]
+
+    def _swing(self, obs: Observation, t: float) -> np.ndarray:
+        prm = self.params
+        rec = self.steps[-1]
+        a = self.arrays
+        lo, hi = obs.support
+        if self._k % self.qp_every == 0:
+            if self._k > 0 and prm.replan:
+                self._plan = replan_step(self._plan, t, obs.c, obs.cd,
+                                         prm.max_step_fraction * self.leg_length,
+                                         prm.capture_offset)
+                rec.replans.append((t, self._plan.land[0], self._plan.capture_at_land))
+            plan = self._plan
+            h = self.qp_every * self.dt
+            dofs = self._leg_dofs()
+            limits = self.character.limits
+            ik_now = solve_ik(obs.q, a, limits, self._targets(t), dofs)
+            ik_next = solve_ik(ik_now.q, a, limits, self._targets(t + h), dofs)
+            alpha, p, _o = forward_kinematics(ik_now.q, a.parent, a.a_par, a.a_chi)
+            sole = body_point(alpha, p, int(a.feet[self.swing]), a.sole_local[self.swing])
+            fx, fy = plan.foot(t)
+            rec.ik_error.append((t, float(math.hypot(sole[0] - fx, sole[1] - fy))))
+            q_r, qd_r, _ = self.trajectory(t)
+            q_r = q_r.copy()
+            qd_r = qd_r.copy()
+            legs = [j for leg in self.legs for j in leg]
+            hq = obs.q[ROOT_DOF:]
+            hqd = obs.qd[ROOT_DOF:]
+            q_r[legs] = ik_now.q[ROOT_DOF:][legs]
+            qd_r[legs] = np.clip((ik_next.q[ROOT_DOF:][legs] - q_r[legs]) / h,
+                                 -MAX_REFERENCE_RATE, MAX_REFERENCE_RATE)
+            # The QP's tracking law is k_t (q_r - q) + d_t (qd_r - qd) + qdd_r; the swing leg
+            # needs the stiffer swing gains, so its qdd_r carries the difference.
+            qdd_r = np.zeros_like(q_r)
+            sp = self.swing_qp.schedule.base
+            sw_leg = self.legs[self.swing]
+            qdd_r[sw_leg] = ((prm.swing_stiffness - sp.k_t) * (q_r[sw_leg] - hq[sw_leg])
+                             + (prm.swing_damping - sp.d_t) * (qd_r[sw_leg] - hqd[sw_leg]))
+            self._ref.value = (q_r, qd_r, qdd_r)
+            pos, vel, acc = plan.path.state(t)
+            self.swing_qp.accel = acc
+            self.c_ref = (float(pos[0]), 0.0)
+            bias = stance_bias(a, obs)
+            qdd = self.swing_qp.solve(t, obs.q, obs.qd, obs.c, obs.cd, obs.A_L, obs.A_H, obs.Js,
+                                      (lo, hi), self.c_ref, (float(vel[0]), 0.0), lambda: bias)
+            b_L, b_H, _b_S = bias
+            m = self.character.total_mass
+            fxg = float(obs.A_L[0] @ qdd + b_L[0])
+            fyg = float(obs.A_L[1] @ qdd + b_L[1] + m * GRAVITY)
+            hdot = float(obs.A_H @ qdd + b_H)
+            cop = (float(obs.c[0]) + (hdot - float(obs.c[1]) * fxg) / fyg if fyg > 0.0
+                   else math.nan)
+            rec.solves.append((t, cop, lo, hi, fyg))
+        self._k += 1
+        plan = self._plan
+        tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.swing_qp.qdd,
+                                                   obs.sole_x, lo, hi, self.mu)
+        self._violations = self._violations + 1 if code != WRENCH_OK else 0
+        if code == WRENCH_NO_NORMAL_FORCE or self._violations * self.dt > WRENCH_VIOLATION_LIMIT:
+            self.lost = f"step_{WRENCH_REASONS[code]}"
+        elif max(obs.points[:, 1].tolist()) > prm.stance_lift_limit:
+            self.lost = "step_foot_lift"
+        elif t - plan.t0 >= MIN_SWING_FRACTION * plan.duration and self._touching(obs):
+            self._land(obs, t)
+        elif t - plan.t0 > plan.duration + prm.touchdown_timeout:
+            self.lost = "step_no_touchdown"
+        return tau
+
+    def _touching(self, obs: Observation) -> bool:
+        a = self.arrays
+        alpha, p, _o = forward_kinematics(obs.q, a.parent, a.a_par, a.a_chi)
+        b = int(a.feet[self.swing])
+        heel = body_point(alpha, p, b, a.heel_local[self.swing])
+        toe = body_point(alpha, p, b, a.toe_local[self.swing])
+        return max(heel[1], toe[1]) <= TOUCHDOWN_HEIGHT
+
+    def _land(self, obs: Observation, t: float) -> None:
+        """Touch-down: both feet in stance; the feet-fixed controller takes over with the legs'
+        reference the posture that puts the CM over the middle of the wider support."""
+        a = self.arrays
+        rec = self.steps[-1]
+        alpha, p, _o = forward_kinematics(obs.q, a.parent, a.a_par, a.a_chi)
+        targets = []
+        lo, hi = math.inf, -math.inf
+        for f in range(len(a.feet)):
+            b = int(a.feet[f])
+            sole = body_point(alpha, p, b, a.sole_local[f])
+            heel = body_point(alpha, p, b, a.heel_local[f])
+            toe = body_point(alpha, p, b, a.toe_local[f])
+            lo, hi = min(lo, heel[0]), max(hi, toe[0])
+            targets.append(Target("point", (float(sole[0]), max(float(sole[1]), 0.0) - 1e-4), b,
+                                  tuple(a.sole_local[f])))
+            targets.append(Target("angle", (0.0,), b))
+            if f == self.swing:
+                rec.length = float(sole[0] - rec.plan.start[0])
+                rec.land_x = float(sole[0])
+        targets.append(Target("cm", (0.5 * (lo + hi),)))
+        held = solve_ik(obs.q, a, self.character.limits, targets, self._leg_dofs())
+        legs = [j for leg in self.legs for j in leg]
+        self._held.hinges = legs
+        self._held.angles = held.q[ROOT_DOF:][legs].copy()
+        self._held.start = obs.q[ROOT_DOF:][legs].copy()
+        self._held.rate = obs.qd[ROOT_DOF:][legs].copy()
+        self._held.t0 = t
+        self._held.blend = self.params.settle_time
+        rec.touchdown = t
+        self.phase = "landed"
+        self.stance = None
+        self.landed_qp.reset(None, self.reference)

@@ -1,0 +1,160 @@
+"""The inverted pendulum model (IPM) of a step: when to step, where to, and the CM's path.
+
+The whole body is reduced to a point mass (the CM) on a massless stiff leg pivoting on the
+ground at the support foot's centre of pressure (the paper's model before foot contact):
+
+    theta'' = (g / l) sin(theta),   x = p + l sin(theta),  y = l cos(theta)
+
+theta is the lean from the vertical (positive forward, +x), l = |CM - pivot| is held. It is
+integrated with fourth-order Runge-Kutta at IPM_DT. `capture_point` is the linearised model's
+(constant height) capture point xi = x + xd sqrt(y / g): the point where the CoP must be for
+the CM to come to rest over it. Feet-fixed balance can hold only while xi stays (nearly) inside
+the support; a step puts the new foot under the capture point predicted at touch-down.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.dynamics import GRAVITY
+
+IPM_DT = 0.001  # s, integration step of the pendulum
+
+
+def capture_point(c: np.ndarray, cd: np.ndarray, ground: float = 0.0) -> float:
+    """x (m) of the linear inverted pendulum's capture point of the CM (c, cd)."""
+    return float(c[0] + cd[0] * math.sqrt(max(float(c[1]) - ground, 1e-6) / GRAVITY))
+
+
+def step_direction(xi: float, support: tuple[float, float], margin: float) -> int:
+    """+1 (step forward) when the capture point xi is more than `margin` (m) ahead of the
+    support's front edge, -1 (backward) when as far behind its back edge, else 0 (the feet can
+    stay planted)."""
+    lo, hi = support
+    if xi > hi + margin:
+        return 1
+    if xi < lo - margin:
+        return -1
+    return 0
+
+
+@dataclass(frozen=True)
+class PendulumPath:
+    """The IPM's CM path from a start time: samples every IPM_DT (times relative to t0)."""
+
+    t0: float
+    pivot: float
+    length: float
+    theta: np.ndarray
+    theta_d: np.ndarray
+
+    def state(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(CM position, velocity, acceleration), each (2,), at time t (clamped to the path)."""
+        u = (t - self.t0) / IPM_DT
+        k = int(min(max(math.floor(u), 0), len(self.theta) - 2))
+        f = min(max(u - k, 0.0), 1.0)
+        th = (1 - f) * self.theta[k] + f * self.theta[k + 1]
+        w = (1 - f) * self.theta_d[k] + f * self.theta_d[k + 1]
+        lg = self.length
+        s, co = math.sin(th), math.cos(th)
+        wd = GRAVITY / lg * s
+        pos = np.array([self.pivot + lg * s, lg * co])
+        vel = np.array([lg * co * w, -lg * s * w])
+        acc = np.array([lg * (co * wd - s * w * w), -lg * (s * wd + co * w * w)])
+        return pos, vel, acc
+
+    @property
+    def duration(self) -> float:
+        return (len(self.theta) - 1) * IPM_DT
+
+
+def pendulum_path(c: np.ndarray, cd: np.ndarray, pivot: float, duration: float,
+                  t0: float = 0.0) -> PendulumPath:
+    """Integrate the IPM from the CM state (c, cd) about the ground point x = pivot for
+    `duration` s. The leg length is |c - pivot|; the initial lean rate is the CM velocity's
+    component across the leg divided by it."""
+    dx, dy = float(c[0] - pivot), float(c[1])
+    lg = math.hypot(dx, dy)
+    th = math.atan2(dx, dy)
+    w = (float(cd[0]) * math.cos(th) - float(cd[1]) * math.sin(th)) / lg
+    n = max(int(math.ceil(duration / IPM_DT)), 1)
+    thetas = np.empty(n + 1)
+    rates = np.empty(n + 1)
+    thetas[0], rates[0] = th, w
+    k = GRAVITY / lg
+    h = IPM_DT
+    for i in range(n):
+        a1 = k * math.sin(th)
+        a2 = k * math.sin(th + 0.5 * h * w)
+        a3 = k * math.sin(th + 0.5 * h * (w + 0.5 * h * a1))
+        a4 = k * math.sin(th + h * (w + 0.5 * h * a2))
+        th, w = (th + h * (w + h * (a1 + a2 + a3) / 6.0),
+                 w + h * (a1 + 2.0 * a2 + 2.0 * a3 + a4) / 6.0)
+        thetas[i + 1], rates[i + 1] = th, w
+    return PendulumPath(t0, pivot, lg, thetas, rates)
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """A planned step: the CM's IPM path over the swing, and the swing foot's sole-centre
+    path (lift-off at `start`, touch-down at `land`, both (x, y) in m) over `duration` s."""
+
+    t0: float
+    duration: float
+    direction: int
+    path: PendulumPath
+    start: tuple[float, float]
+    land: tuple[float, float]
+    clearance: float
+    capture_at_land: float
+
+    def foot(self, t: float) -> tuple[float, float]:
+        """Planned sole-centre position of the swing foot at t: a quintic ease along x and a
+        quartic lift 16 h s^2 (1 - s)^2 of `clearance` h over the swing (level at lift-off and
+        touch-down, so the foot meets the ground slowly), aimed slightly below the ground at the end
+        so the foot meets it (held there after the planned touch-down)."""
+        from sim.trajectory import ease  # (local: keeps this module's imports light)
+        s = min(max((t - self.t0) / self.duration, 0.0), 1.0)
+        e = ease(s)[0]
+        x = self.start[0] + (self.land[0] - self.start[0]) * e
+        y = (self.start[1] + (self.land[1] - self.start[1]) * s
+             + 16.0 * self.clearance * (s * (1.0 - s)) ** 2)
+        return x, y
+
+
+def plan_step(t0: float, c: np.ndarray, cd: np.ndarray, pivot: float,
+              swing_start: tuple[float, float], direction: int, duration: float,
+              clearance: float, max_step: float, land_depth: float = 0.01,
+              capture_offset: float = 0.0) -> StepPlan:
+    """Plan a step from the state (c, cd) at t0 with the CoP held at `pivot`: the IPM gives the
+    CM at touch-down (t0 + duration) and its capture point there; the swing foot's sole centre
+    lands `capture_offset` (m, along `direction`) short of that point, so the capture point lies
+    over the new foot, at most `max_step` (m) from where the foot started. `land_depth` (m): the
+    foot is aimed this far below the ground so that it makes contact."""
+    path = pendulum_path(c, cd, pivot, duration, t0)
+    pos, vel, _acc = path.state(t0 + duration)
+    xi = capture_point(pos, vel)
+    x_land = xi - direction * capture_offset
+    step = min(max(direction * (x_land - swing_start[0]), 0.0), max_step)
+    x_land = swing_start[0] + direction * step
+    return StepPlan(t0, duration, direction, path, (float(swing_start[0]), float(swing_start[1])),
+                    (float(x_land), -land_depth), clearance, xi)
+
+
+def replan_step(plan: StepPlan, t: float, c: np.ndarray, cd: np.ndarray, max_step: float,
+                capture_offset: float = 0.0) -> StepPlan:
+    """The same step (lift-off, touch-down time, pivot) re-planned from the CM state at t: the
+    IPM from (c, cd) over what is left of the swing, and the landing under its new capture point.
+    A push still acting when the step started moves the capture point on; re-planning follows it
+    (the controller does not know the force)."""
+    t_land = plan.t0 + plan.duration
+    path = pendulum_path(c, cd, plan.path.pivot, max(t_land - t, IPM_DT), t)
+    pos, vel, _acc = path.state(t_land)
+    xi = capture_point(pos, vel)
+    d = plan.direction
+    step = min(max(d * (xi - d * capture_offset - plan.start[0]), 0.0), max_step)
+    return StepPlan(plan.t0, plan.duration, d, path, plan.start,
+                    (float(plan.start[0] + d * step), plan.land[1]), plan.clearance, xi)
