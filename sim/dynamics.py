@@ -333,6 +333,29 @@ def step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_loca
     return M, h, c, cd, A_L, A_H, Js, pts, sole[:, 0].copy(), lo, hi, clearance
 
 
+@njit(cache=True)
+def step_model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
+                    heel_local, toe_local, point_body, point_local, point_radius,
+                    M, h, c, cd, A_L, A_H, Js, pts, sole_x):
+    """`step_model` writing its arrays into the given ones (M, h, c, cd, A_L, A_H, Js, pts,
+    sole_x, shaped as `step_model` returns them) and returning only (support back edge x,
+    front edge x, lowest outline clearance): the same values, without boxing nine new arrays
+    for Python every step (~0.3 us each). The arrays are overwritten at each call."""
+    (M1, h1, c1, cd1, A_L1, A_H1, Js1, pts1, sole1, lo, hi,
+     clearance) = step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
+                             heel_local, toe_local, point_body, point_local, point_radius)
+    M[:, :] = M1
+    h[:] = h1
+    c[:] = c1
+    cd[:] = cd1
+    A_L[:, :] = A_L1
+    A_H[:] = A_H1
+    Js[:, :] = Js1
+    pts[:, :] = pts1
+    sole_x[:] = sole1
+    return lo, hi, clearance
+
+
 #: Codes of `checked_inverse_dynamics`.
 WRENCH_OK, WRENCH_NO_NORMAL_FORCE, WRENCH_FRICTION_CONE, WRENCH_COP_OUTSIDE = 0, 1, 2, 3
 WRENCH_REASONS = ("", "no_normal_force", "friction_cone", "cop_outside_support")

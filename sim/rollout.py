@@ -32,7 +32,7 @@ import numpy as np
 from sim.character import ROOT_DOF, Character
 from sim.controllers import ControllerParams, FallController, GainScheduler, MomentumController
 from sim.controllers.base import Cmrt, Controller, Observation
-from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics, step_model
+from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics, step_model_into
 from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
 from sim.recording import FRAME_EVERY, Recorder
@@ -177,9 +177,17 @@ class Rollout:
         lost = False
         c_ref = (self.cm0[0], 0.0)
         k_done = 0
+        # The model terms are written into these arrays every step (step_model_into): the
+        # Observation's arrays hold this step's values only, as q and qd (read_state) do.
+        n, nf = ch.ndof, len(ch.feet)
+        model = (np.empty((n, n)), np.empty(n), np.empty(2), np.empty(2), np.empty((2, n)),
+                 np.empty(n), np.empty((3 * nf, n)), np.empty((2 * nf, 2)), np.empty(nf))
+        M, h, c, cd, A_L, A_H, Js, pts, sole_x = model
         margs = a.args() + (a.feet, a.sole_local, a.heel_local, a.toe_local, a.point_body,
-                            a.point_local, a.point_radius)
+                            a.point_local, a.point_radius) + model
         read_state, diverged = phys.read_state, phys.diverged
+        apply_torques, make_contacts, world_step = phys.apply_torques, phys.make_contacts, phys.step
+        contact_forces, clear_contacts = phys.contact_forces, phys.clear_contacts
         has_props = bool(phys.props)
         # Lower bound of the objective at any point of the clip: the running error norm grows
         # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
@@ -199,8 +207,7 @@ class Rollout:
                 if why is not None:
                     raise DivergenceError(f"{self.spec.name}: the simulation diverged at "
                                           f"t = {t:.3f} s ({why})")
-            (M, h, c, cd, A_L, A_H, Js, pts, sole_x, lo, hi,
-             clearance) = step_model(q, qd, *margs)
+            lo, hi, clearance = step_model_into(q, qd, *margs)
             s = 0.5 * (lo + hi)
             physical = None
             if clearance < 0.0:
@@ -227,23 +234,24 @@ class Rollout:
                     tau = active.act(obs, t)
             if rec is not None and k % FRAME_EVERY == 0:
                 rec.frame(t, c, c_ref, (lo, hi))
-            phys.apply_torques(tau)
+            apply_torques(tau)
             if events:
                 task.before_step(phys, t)
-            phys.make_contacts(pts, foot_of_point)
+            make_contacts(pts, foot_of_point)
             if has_props:
                 phys.collide_props()
-            phys.step()
-            fy, _fx, cop = phys.contact_forces()
+            world_step()
+            fy, _fx, cop = contact_forces()
             if events:
                 task.after_step(phys, t + DT)
-            phys.clear_contacts()
+            clear_contacts()
             k_done = k + 1
             e = math.nan
             if fy > MIN_CONTACT_FORCE and not lost:
                 e = cop - s
                 sq_sum += e * e
-                max_e = max(max_e, abs(e))
+                if abs(e) > max_e:  # max(max_e, |e|) without the builtin's call
+                    max_e = abs(e)
                 contact_steps += 1
             if rec is not None:
                 rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c, c_ref,
