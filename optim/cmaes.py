@@ -98,7 +98,7 @@ class GenerationStats:
     evaluations: int  # cumulative
     best: float  # this generation
     median: float
-    worst: float
+    worst: float  # a lower bound of it when the last was cut early (optim.rankcut)
     sigma: float
     best_so_far: float
 
@@ -202,6 +202,24 @@ class CmaOptimizer:
     @property
     def sigma(self) -> float:
         return float(self._s.es.sigma)
+
+    @property
+    def mean(self) -> np.ndarray:
+        """The strategy's current mean (a copy; pycma's genotype coordinates)."""
+        return np.array(self._s.es.mean, dtype=float)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """The strategy's current covariance matrix C (a copy)."""
+        return np.array(self._s.es.C, dtype=float)
+
+    @property
+    def cut_margin(self) -> float | None:
+        """The margin `optim.rankcut` needs for an early stop of a generation's certain last
+        (pycma's tolfun), None when this strategy's options allow no cut."""
+        from optim.rankcut import cut_margin
+
+        return cut_margin(self._s.es)
 
     @property
     def best_x(self) -> np.ndarray | None:

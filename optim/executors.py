@@ -12,6 +12,11 @@ Contracts:
   * `PoolExecutor` raises `EvaluationError` (never hangs) when a worker process dies
     (BrokenProcessPool) or a batch exceeds its timeout; the broken pool is torn down (its
     processes killed) and a fresh one is started by the next `map`.
+  * `map(fn, batch, cut_margin=m)` (m from `optim.rankcut.cut_margin`; None: no cut) lets the
+    last unfinished candidate of the batch stop early once it certainly ranks last
+    (`optim.rankcut`), when `fn` has `supports_cut` (takes `stop_above`). In a pool the bound
+    reaches that candidate's worker through a shared array, keyed by a per-submission number
+    so that no other evaluation reads it.
   * `PoolExecutor`'s worker processes never outlive the process that made the pool: each
     watches its parent and exits within PARENT_WATCH_S once the parent is gone (killed with
     SIGKILL, say, where no clean-up runs), instead of waiting on its queue for ever.
@@ -21,6 +26,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import math
 import multiprocessing
 import os
 import threading
@@ -35,6 +41,7 @@ import numpy as np
 
 from optim.errors import EvaluationError
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
+from optim.rankcut import bound_for_last
 
 #: Default wall-clock limit for one batch in a process pool, seconds: far above any real batch
 #: (a 20 s clip costs ~2 s of CPU; 200 of them on one worker ~400 s) so a hung worker cannot
@@ -66,6 +73,41 @@ def evaluate_one(fn: Objective, params: np.ndarray) -> EvalOutcome:
     if isinstance(out, EvalOutcome):
         return out
     return EvalOutcome(objective=float(out), cpu_seconds=time.process_time() - t0)
+
+
+def _cut_key_bound(shared: Any, key: float) -> Callable[[], float]:
+    """A `stop_above` reading the bound the parent posts for submission `key` in `shared`
+    ([key, bound]; the parent writes the bound before the key): inf until it is posted."""
+
+    def read() -> float:
+        k1 = shared[0]
+        b = shared[1]
+        if k1 == key and shared[0] == key:
+            return b
+        return math.inf
+
+    return read
+
+
+#: The pool worker's shared [key, bound] array (set by the initializer), None elsewhere.
+_CUT_SHARED: Any = None
+
+
+def evaluate_one_cuttable(fn: Objective, params: np.ndarray, key: float) -> EvalOutcome:
+    """`evaluate_one` in a pool worker, `fn` stopping early once the parent posts a bound
+    for `key` that its objective's lower bound exceeds (see module docstring)."""
+    shared = _CUT_SHARED
+    if shared is None:
+        return evaluate_one(fn, params)
+    reader = _cut_key_bound(shared, key)
+    return evaluate_one(lambda x: fn(x, stop_above=reader), params)
+
+
+def _init_pool_worker(parent_pid: int, shared: Any) -> None:
+    """Pool-worker initializer: the parent watch, and the shared cut array."""
+    global _CUT_SHARED
+    _CUT_SHARED = shared
+    _exit_with_parent(parent_pid)
 
 
 def _ping() -> int:
@@ -103,7 +145,8 @@ class Executor(ABC):
     """Evaluates batches of candidates; a context manager (`close()` on exit)."""
 
     @abstractmethod
-    def map(self, fn: Objective, batch: Sequence[np.ndarray]) -> list[EvalOutcome]:
+    def map(self, fn: Objective, batch: Sequence[np.ndarray],
+            cut_margin: float | None = None) -> list[EvalOutcome]:
         """One outcome per candidate, in order (see module docstring)."""
 
     def close(self) -> None:  # noqa: B027 - optional hook
@@ -128,8 +171,15 @@ class Executor(ABC):
 class SerialExecutor(Executor):
     """Evaluates candidates one after the other in the calling process."""
 
-    def map(self, fn: Objective, batch: Sequence[np.ndarray]) -> list[EvalOutcome]:
-        return [evaluate_one(fn, np.asarray(x, dtype=float)) for x in batch]
+    def map(self, fn: Objective, batch: Sequence[np.ndarray],
+            cut_margin: float | None = None) -> list[EvalOutcome]:
+        xs = [np.asarray(x, dtype=float) for x in batch]
+        if cut_margin is None or len(xs) < 2 or not getattr(fn, "supports_cut", False):
+            return [evaluate_one(fn, x) for x in xs]
+        out = [evaluate_one(fn, x) for x in xs[:-1]]
+        bound = bound_for_last([o.objective for o in out], cut_margin)
+        out.append(evaluate_one(lambda x: fn(x, stop_above=lambda: bound), xs[-1]))
+        return out
 
 
 class PoolExecutor(Executor):
@@ -156,6 +206,8 @@ class PoolExecutor(Executor):
         self._ctx = multiprocessing.get_context(start_method)
         self._pool: cf.ProcessPoolExecutor | None = None
         self._closed = False
+        self._cut_shared: Any = None  # [key, bound] shared with the workers
+        self._cut_key = 0.0
 
     @property
     def workers(self) -> int:
@@ -165,9 +217,10 @@ class PoolExecutor(Executor):
         if self._closed:
             raise EvaluationError("PoolExecutor is closed")
         if self._pool is None:
+            self._cut_shared = self._ctx.RawArray("d", [-1.0, math.inf])
             self._pool = cf.ProcessPoolExecutor(max_workers=self._workers, mp_context=self._ctx,
-                                                initializer=_exit_with_parent,
-                                                initargs=(os.getpid(),))
+                                                initializer=_init_pool_worker,
+                                                initargs=(os.getpid(), self._cut_shared))
             self._warm_up()
         return self._pool
 
@@ -195,18 +248,60 @@ class PoolExecutor(Executor):
         if pool is not None:
             kill_process_pool(pool)
 
-    def map(self, fn: Objective, batch: Sequence[np.ndarray]) -> list[EvalOutcome]:
+    def _submit(self, pool: cf.ProcessPoolExecutor, fn: Objective, batch: Sequence[np.ndarray],
+                cut: bool) -> tuple[list[cf.Future], list[float]]:
+        if not cut:
+            return [pool.submit(evaluate_one, fn, np.asarray(x, dtype=float)) for x in batch], []
+        keys = []
+        futures = []
+        for x in batch:
+            self._cut_key += 1.0
+            keys.append(self._cut_key)
+            futures.append(pool.submit(evaluate_one_cuttable, fn, np.asarray(x, dtype=float),
+                                       self._cut_key))
+        return futures, keys
+
+    def _wait_cutting(self, futures: list[cf.Future], keys: list[float],
+                      margin: float) -> set[cf.Future]:
+        """Wait for the batch; once one future is left, post its bound (the others' values)."""
+        deadline = None if self._timeout is None else time.monotonic() + self._timeout
+        pending = set(futures)
+        posted = False
+        while pending:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            done, pending = cf.wait(pending, timeout=left, return_when=cf.FIRST_COMPLETED)
+            if not done:
+                return pending  # timed out
+            if len(pending) == 1 and not posted:
+                posted = True
+                last = next(iter(pending))
+                try:
+                    vals = [f.result().objective for f in futures if f is not last]
+                except Exception:  # noqa: BLE001 - reported by map's result loop
+                    continue
+                shared = self._cut_shared
+                shared[1] = bound_for_last(vals, margin)
+                shared[0] = keys[futures.index(last)]  # the key last: see _cut_key_bound
+        return pending
+
+    def map(self, fn: Objective, batch: Sequence[np.ndarray],
+            cut_margin: float | None = None) -> list[EvalOutcome]:
         if len(batch) == 0:
             return []
         pool = self._get_pool()
+        cut = cut_margin is not None and len(batch) >= 2 and getattr(fn, "supports_cut", False)
         try:
-            futures = [pool.submit(evaluate_one, fn, np.asarray(x, dtype=float)) for x in batch]
+            futures, keys = self._submit(pool, fn, batch, cut)
         except BrokenProcessPool as err:
             self._kill_pool()
             raise EvaluationError(
                 f"a worker process died before the batch started: {err}"
             ) from None
-        done, not_done = cf.wait(futures, timeout=self._timeout)
+        if cut:
+            assert cut_margin is not None
+            not_done = self._wait_cutting(futures, keys, cut_margin)
+        else:
+            _done, not_done = cf.wait(futures, timeout=self._timeout)
         if not_done:
             self._kill_pool()
             raise EvaluationError(

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from optim import rankcut
 from optim.cmaes import CmaOptimizer, GenerationStats, StopRules
 from optim.errors import EvaluationError
 from optim.outcome import EvalOutcome
@@ -159,6 +160,13 @@ def step(opt: CmaOptimizer, space: SearchSpace, evaluator: CandidateEvaluator) -
         raise EvaluationError(
             f"generation {generation}: {len(outs)} outcomes for {len(xs)} candidates"
         )
+    if not rankcut.verify(outs, opt.cut_margin):
+        # Never expected (the executors cut only under the condition): evaluate the cut
+        # candidates in full, one at a time (a single candidate is never cut).
+        outs = list(outs)
+        for i, o in enumerate(outs):
+            if o.cut:
+                outs[i] = evaluator.evaluate(generation, [full[i]])[0]
     if all(o.error is not None for o in outs):
         raise EvaluationError(
             f"every candidate of generation {generation} failed to evaluate; first error: "

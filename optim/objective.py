@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -79,18 +79,29 @@ class SimObjective:
     def spec(self) -> TaskSpec:
         return _parse(self.spec_json)
 
+    #: `__call__` takes `stop_above` (optim.rankcut's early stop of a certain last).
+    supports_cut = True
+
     def evaluation(
-        self, params: Sequence[float] | np.ndarray | None, traces: bool = False
+        self, params: Sequence[float] | np.ndarray | None, traces: bool = False,
+        stop_above: Callable[[], float] | None = None,
     ) -> Evaluation:
-        """The full `Evaluation` of `params` (None: no CMRT)."""
+        """The full `Evaluation` of `params` (None: no CMRT); `stop_above`: see
+        `sim.rollout.Rollout.run`."""
         spec, sim = _cached(self.spec_json)
         cmrt = None if params is None else decode(spec, params)
-        return sim.run(cmrt, traces=traces)
+        if stop_above is None:
+            return sim.run(cmrt, traces=traces)
+        return sim.run(cmrt, traces=traces, stop_above=stop_above)
 
-    def __call__(self, params: Sequence[float] | np.ndarray | None) -> EvalOutcome:
-        ev = self.evaluation(params)
+    def __call__(
+        self, params: Sequence[float] | np.ndarray | None,
+        stop_above: Callable[[], float] | None = None,
+    ) -> EvalOutcome:
+        ev = self.evaluation(params, stop_above=stop_above)
         return EvalOutcome(
-            objective=float(ev.objective), fell=bool(ev.fell), cpu_seconds=float(ev.cpu_seconds)
+            objective=float(ev.objective), fell=bool(ev.fell), cpu_seconds=float(ev.cpu_seconds),
+            cut=bool(ev.cut), sim_seconds=float(ev.sim_seconds),
         )
 
     def __getstate__(self) -> dict[str, str]:

@@ -20,13 +20,17 @@ class EvalOutcome:
 
     objective: value to minimise (m for the CMRT objective; FAILED_OBJECTIVE on error);
     fell: the character fell; cpu_seconds: CPU time of the evaluation (s);
-    error: None, or "ExceptionType: message" when the evaluation raised.
+    error: None, or "ExceptionType: message" when the evaluation raised;
+    cut: stopped early as the certain last of its generation (`optim.rankcut`): `objective`
+    is a lower bound of the candidate's objective; sim_seconds: simulated seconds spent.
     """
 
     objective: float
     fell: bool = False
     cpu_seconds: float = 0.0
     error: str | None = None
+    cut: bool = False
+    sim_seconds: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -38,6 +42,8 @@ class EvalOutcome:
             fell=bool(d.get("fell", False)),
             cpu_seconds=float(d.get("cpu_seconds", 0.0)),
             error=d.get("error"),
+            cut=bool(d.get("cut", False)),
+            sim_seconds=float(d.get("sim_seconds", 0.0)),
         )
 
 

@@ -53,6 +53,38 @@ class NoisyFlat:
 
 
 @dataclass(frozen=True)
+class RunningSum:
+    """A clip-like objective: sqrt of a sum of `steps` squared errors e_k = (x_j - centre) *
+    (1 + k / steps) over the coordinates in turn, so the running sum grows as a simulated
+    clip's does. Takes `stop_above` like `optim.objective.SimObjective`: read every
+    `check_every` steps, it stops once sqrt(running sum) exceeds it (`cut=True`, the running
+    norm as the objective). `sim_seconds` counts the steps done (1 ms each)."""
+
+    centre: float = 0.3
+    steps: int = 400
+    check_every: int = 10
+    #: s of wall time per check, times 1 + 5 |x - centre|: worse candidates take longer, so
+    #: a pool's last unfinished candidate is often the worst (exercises the pool's cut path).
+    sleep: float = 0.0
+    supports_cut = True
+
+    def __call__(self, x: np.ndarray, stop_above=None) -> EvalOutcome:  # noqa: ANN001
+        d = np.asarray(x, dtype=float) - self.centre
+        pause = self.sleep * (1.0 + 5.0 * float(np.sqrt(d @ d)))
+        sq = 0.0
+        for k in range(self.steps):
+            if k % self.check_every == 0 and pause:
+                time.sleep(pause)
+            if stop_above is not None and k % self.check_every == 0:
+                lb = float(np.sqrt(sq))
+                if lb > stop_above():
+                    return EvalOutcome(objective=lb, cut=True, sim_seconds=k * 1e-3)
+            e = float(d[k % len(d)]) * (1.0 + k / self.steps)
+            sq += e * e
+        return EvalOutcome(objective=float(np.sqrt(sq)), sim_seconds=self.steps * 1e-3)
+
+
+@dataclass(frozen=True)
 class RaiseAbove:
     """Sphere that raises ValueError when x[0] > limit (an evaluation error)."""
 
@@ -85,4 +117,4 @@ class Sleep:
         return EvalOutcome(objective=0.0)
 
 
-__all__ = ["KillWorker", "NoisyFlat", "RaiseAbove", "Sleep", "Sphere"]
+__all__ = ["KillWorker", "NoisyFlat", "RaiseAbove", "RunningSum", "Sleep", "Sphere"]

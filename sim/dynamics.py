@@ -188,6 +188,11 @@ def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
 
     Returns (M, h, alpha, p, o, omega, c, cd, A_L, A_H): A_L (2, n) maps qd to linear momentum,
     A_H (n,) maps qd to the angular momentum about the CoM.
+
+    Body b's Jacobians are non-zero only in its own columns (x, y, root angle and the hinges
+    on its path), so only those entries are summed: a skipped term is exactly +-0 and adding
+    it changes no sum (the sums start at +0 and keep the body order), so M, h and the
+    momentum rows are the same bits as the dense sums over all n x n entries.
     """
     nb = parent.shape[0]
     n = q.shape[0]
@@ -199,26 +204,42 @@ def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
     A_root = np.zeros(n)  # angular momentum about the root CoM
     mtot = 0.0
     c = np.zeros(2)
+    cols = np.empty(n, dtype=np.int64)
+    jv0 = np.empty(n)  # Jv row x, row y and Jw of body b, in the order of `cols`
+    jv1 = np.empty(n)
+    jw = np.empty(n)
     for b in range(nb):
         m = mass[b]
-        Jv = point_jacobian(p[b], b, o, path, n)
-        Jw = np.zeros(n)
-        Jw[2] = 1.0
+        ib = inertia[b]
+        px, py = p[b, 0], p[b, 1]
+        cols[0], jv0[0], jv1[0], jw[0] = 0, 1.0, 0.0, 0.0
+        cols[1], jv0[1], jv1[1], jw[1] = 1, 0.0, 1.0, 0.0
+        cols[2], jv0[2], jv1[2], jw[2] = 2, -(py - o[0, 1]), px - o[0, 0], 1.0
+        nc = 3
         for k in range(1, nb):
             if path[b, k]:
-                Jw[ROOT_DOF + k - 1] = 1.0
-        for i in range(n):
-            for j in range(n):
-                M[i, j] += (m * (Jv[0, i] * Jv[0, j] + Jv[1, i] * Jv[1, j])
-                            + inertia[b] * Jw[i] * Jw[j])
-            h[i] += m * (Jv[0, i] * acc[b, 0] + Jv[1, i] * (acc[b, 1] + GRAVITY))
-            A_L[0, i] += m * Jv[0, i]
-            A_L[1, i] += m * Jv[1, i]
-            A_root[i] += m * ((p[b, 0] - p[0, 0]) * Jv[1, i] - (p[b, 1] - p[0, 1]) * Jv[0, i])
-            A_root[i] += inertia[b] * Jw[i]
+                cols[nc] = ROOT_DOF + k - 1
+                jv0[nc] = -(py - o[k, 1])
+                jv1[nc] = px - o[k, 0]
+                jw[nc] = 1.0
+                nc += 1
+        ay = acc[b, 1] + GRAVITY
+        ax = acc[b, 0]
+        dpx = px - p[0, 0]
+        dpy = py - p[0, 1]
+        for a in range(nc):
+            i = cols[a]
+            for e in range(nc):
+                j = cols[e]
+                M[i, j] += m * (jv0[a] * jv0[e] + jv1[a] * jv1[e]) + ib * jw[a] * jw[e]
+            h[i] += m * (jv0[a] * ax + jv1[a] * ay)
+            A_L[0, i] += m * jv0[a]
+            A_L[1, i] += m * jv1[a]
+            A_root[i] += m * (dpx * jv1[a] - dpy * jv0[a])
+            A_root[i] += ib * jw[a]
         mtot += m
-        c[0] += m * p[b, 0]
-        c[1] += m * p[b, 1]
+        c[0] += m * px
+        c[1] += m * py
     c /= mtot
     # H about the CoM = H about the root CoM - (c - p_root) x L
     dx = c[0] - p[0, 0]
@@ -262,8 +283,9 @@ def lowest_clearance(alpha, p, point_body, point_local, point_radius):
     best = 1e9
     arg = -1
     for i in range(point_body.shape[0]):
-        r = body_point(alpha, p, point_body[i], point_local[i])
-        h = r[1] - point_radius[i]
+        b = point_body[i]
+        _rx, ry = _rot(alpha[b], point_local[i])
+        h = (p[b, 1] + ry) - point_radius[i]  # body_point's y, without its array
         if h < best:
             best = h
             arg = i
@@ -310,6 +332,29 @@ def step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_loca
         hi = max(hi, toe[f, 0])
     clearance, _ = lowest_clearance(alpha, p, point_body, point_local, point_radius)
     return M, h, c, cd, A_L, A_H, Js, pts, sole[:, 0].copy(), lo, hi, clearance
+
+
+@njit(cache=True)
+def step_model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
+                    heel_local, toe_local, point_body, point_local, point_radius,
+                    M, h, c, cd, A_L, A_H, Js, pts, sole_x):
+    """`step_model` writing its arrays into the given ones (M, h, c, cd, A_L, A_H, Js, pts,
+    sole_x, shaped as `step_model` returns them) and returning only (support back edge x,
+    front edge x, lowest outline clearance): the same values, without boxing nine new arrays
+    for Python every step (~0.3 us each). The arrays are overwritten at each call."""
+    (M1, h1, c1, cd1, A_L1, A_H1, Js1, pts1, sole1, lo, hi,
+     clearance) = step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
+                             heel_local, toe_local, point_body, point_local, point_radius)
+    M[:, :] = M1
+    h[:] = h1
+    c[:] = c1
+    cd[:] = cd1
+    A_L[:, :] = A_L1
+    A_H[:] = A_H1
+    Js[:, :] = Js1
+    pts[:, :] = pts1
+    sole_x[:] = sole1
+    return lo, hi, clearance
 
 
 #: Codes of `checked_inverse_dynamics`.

@@ -75,6 +75,7 @@ class Evaluation:
         sqrt(c_y / g) was relative to the support centre at the fall), None without a fall.
     task_success: the task's own goal (ball held at the end, ...), None for tasks that have
         none beyond balance. task_penalty: what the task added to the objective (0 if nothing).
+    cut: stopped early as a certain last of its generation (see `sim.rollout.Rollout.run`).
     """
 
     objective: float
@@ -90,6 +91,9 @@ class Evaluation:
     fall_direction: str | None = None
     task_success: bool | None = None
     task_penalty: float = 0.0
+    #: The run was stopped early by `stop_above` (sim.rollout): `objective` is then a lower
+    #: bound of the clip's objective, not its value.
+    cut: bool = False
     traces: Traces | None = field(default=None, repr=False)
     frames: Frames | None = field(default=None, repr=False)
 

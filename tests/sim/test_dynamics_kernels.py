@@ -1,0 +1,84 @@
+"""The sparse model kernels (issue 15) give the bits of the dense sums they replaced."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sim import load_spec
+from sim.character import ROOT_DOF
+from sim.dynamics import (
+    GRAVITY,
+    dynamics,
+    forward_kinematics,
+    point_jacobian,
+    step_model,
+    step_model_into,
+    velocity_accelerations,
+)
+from sim.rollout import Rollout
+
+
+@njit(cache=False)
+def dense_dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
+    """The dense n x n sums of `sim.dynamics.dynamics` before issue 15 (reference)."""
+    nb = parent.shape[0]
+    n = q.shape[0]
+    alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
+    omega, acc = velocity_accelerations(qd, parent, p, o)
+    M = np.zeros((n, n))
+    h = np.zeros(n)
+    A_L = np.zeros((2, n))
+    A_root = np.zeros(n)
+    mtot = 0.0
+    c = np.zeros(2)
+    for b in range(nb):
+        m = mass[b]
+        Jv = point_jacobian(p[b], b, o, path, n)
+        Jw = np.zeros(n)
+        Jw[2] = 1.0
+        for k in range(1, nb):
+            if path[b, k]:
+                Jw[ROOT_DOF + k - 1] = 1.0
+        for i in range(n):
+            for j in range(n):
+                M[i, j] += (m * (Jv[0, i] * Jv[0, j] + Jv[1, i] * Jv[1, j])
+                            + inertia[b] * Jw[i] * Jw[j])
+            h[i] += m * (Jv[0, i] * acc[b, 0] + Jv[1, i] * (acc[b, 1] + GRAVITY))
+            A_L[0, i] += m * Jv[0, i]
+            A_L[1, i] += m * Jv[1, i]
+            A_root[i] += m * ((p[b, 0] - p[0, 0]) * Jv[1, i] - (p[b, 1] - p[0, 1]) * Jv[0, i])
+            A_root[i] += inertia[b] * Jw[i]
+        mtot += m
+        c[0] += m * p[b, 0]
+        c[1] += m * p[b, 1]
+    c /= mtot
+    dx = c[0] - p[0, 0]
+    dy = c[1] - p[0, 1]
+    A_H = np.empty(n)
+    for i in range(n):
+        A_H[i] = A_root[i] - (dx * A_L[1, i] - dy * A_L[0, i])
+    cd = (A_L @ qd) / mtot
+    return M, h, alpha, p, o, omega, c, cd, A_L, A_H
+
+
+def test_sparse_dynamics_and_step_model_into_are_bit_identical() -> None:
+    sim = Rollout(load_spec("examples/quiet_stance.yaml"))
+    a = sim.arrays
+    margs = a.args() + (a.feet, a.sole_local, a.heel_local, a.toe_local, a.point_body,
+                        a.point_local, a.point_radius)
+    n, nf = len(sim.q0), len(a.feet)
+    bufs = (np.empty((n, n)), np.empty(n), np.empty(2), np.empty(2), np.empty((2, n)),
+            np.empty(n), np.empty((3 * nf, n)), np.empty((2 * nf, 2)), np.empty(nf))
+    rng = np.random.default_rng(15)
+    for _ in range(300):
+        q = sim.q0 + rng.normal(0.0, 0.5, n)
+        qd = rng.normal(0.0, 3.0, n)
+        for x, y in zip(dynamics(q, qd, *a.args()), dense_dynamics(q, qd, *a.args()),
+                        strict=True):
+            assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
+        ref = step_model(q, qd, *margs)
+        tail = step_model_into(q, qd, *margs, *bufs)
+        for x, y in zip(bufs + tuple(tail), ref, strict=True):
+            assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
+    sim.close()
