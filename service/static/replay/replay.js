@@ -279,7 +279,8 @@
     plotsBox.appendChild(box);
     const width = Math.max(300, Math.min(1200, (root.clientWidth || 960) - 20));
     const opts = {
-      title: name, width: width, height: 160, plugins: [playheadPlugin()],
+      title: name, width: width, height: 190, plugins: [playheadPlugin()],
+      legend: { live: false },
       scales: { x: { time: false }, y: { range: range } },
       axes: [{ label: "t (s)" }, { label: unit, size: 60 }],
       series: [{ label: "t" }].concat(series),
