@@ -95,8 +95,9 @@
   const ASPECT = (B.y1 - B.y0) / (B.x1 - B.x0);
 
   function sizeCanvases() {
-    const w = Math.max(260, Math.min(620, Math.floor((views.clientWidth || 900) /
-      clipViews.length) - 16));
+    const n = clipViews.length, gap = 12, frame = 12;  // .views gap, figure padding + border
+    const w = Math.max(260, Math.min(620, Math.floor(((views.clientWidth || 900) -
+      gap * (n - 1)) / n) - frame));
     const h = Math.round(Math.min(520, Math.max(260, w * ASPECT)));
     const dpr = window.devicePixelRatio || 1;
     clipViews.forEach(function (v) {
