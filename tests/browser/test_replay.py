@@ -99,3 +99,28 @@ def test_user_text_is_shown_not_run(page, tmp_path):
     assert page.evaluate("window.pwned === undefined")
     assert page.locator("figure.view figcaption strong").inner_text() == evil
     assert page.errors == []
+
+
+def test_served_replay_runs_under_its_csp_header(page, tmp_path):
+    """`POST /simulations/replay` answers the page with a hash-only Content-Security-Policy
+    header; in the browser, under that header, the player still draws with no CSP error."""
+    from fastapi.testclient import TestClient
+
+    from cmrt.settings import Settings
+    from service.app import create_app
+
+    settings = Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/t.db", workers=1)
+    spec = {"name": "quiet", "clip": {"preparation": 0.2, "duration": 0.2, "decay": 0.2},
+            "task": {"type": "quiet_stance"}}
+    with TestClient(create_app(settings, run_drivers=False)) as c:
+        r = c.post("/simulations/replay", json={"spec": spec})
+    assert r.status_code == 200, r.text
+    csp = r.headers["content-security-policy"]
+    url = "http://replay.test/simulations/replay"
+    page.route(url, lambda route: route.fulfill(
+        status=200, body=r.text, headers={"content-type": "text/html; charset=utf-8",
+                                          "content-security-policy": csp}))
+    page.goto(url)
+    page.wait_for_selector("#replay[data-ready=true]")
+    assert page.locator("canvas.stage").count() == 1
+    assert page.errors == []
