@@ -101,7 +101,9 @@ def _write_replay(path: str, spec: Any, ev: Any, cmrt: Any, source: str, flat: A
     from sim.replay import ReplayClip, build_replay
 
     label = "with the CMRT" if cmrt is not None else "no anticipation (flat spline)"
-    clips = [ReplayClip(label, ev, cmrt, {"source": source})]
+    # The result file by name only: a replay file is shared, the local path is not its business.
+    about = {"source": source if source in ("none", "superposed") else Path(source).name}
+    clips = [ReplayClip(label, ev, cmrt, about)]
     if flat is not None:
         clips.insert(0, ReplayClip("no anticipation (flat spline)", flat, None,
                                    {"source": "none"}))
