@@ -67,15 +67,24 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     elif not args.zero and spec.task_type == "sequence":
         cmrt = _sequence_cmrt(spec, Path(args.spec).parent)
         source = "superposed" if cmrt is not None else "none"
+    if args.compare and not args.replay:
+        return _die("--compare: needs --replay OUT.html")
+    if args.compare and cmrt is None:
+        return _die("--compare: needs a CMRT (--cmrt RESULT.json) to compare with the flat "
+                    "spline")
+    record = bool(args.trace or args.replay)
     sim = Simulator(spec)
     t0 = time.perf_counter()
     try:
-        ev = sim.run(cmrt, traces=bool(args.trace))
+        ev = sim.run(cmrt, traces=record)
+        flat = sim.run(None, traces=True) if args.compare else None
     finally:
         sim.close()
     wall = time.perf_counter() - t0
     if args.trace:
         ev.traces.to_csv(args.trace)
+    if args.replay:
+        _write_replay(args.replay, spec, ev, cmrt, source, flat)
     out = {"spec": spec.name, "cmrt": source, **ev.to_dict(), "wall_seconds": wall}
     if args.json:
         print(json.dumps(out))
@@ -84,6 +93,25 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                   "error_norm", "max_abs_error", "sim_seconds", "cpu_seconds"):
             print(f"{k:>14}: {_fmt(out[k])}")
     return 0
+
+
+def _write_replay(path: str, spec: Any, ev: Any, cmrt: Any, source: str, flat: Any) -> None:
+    """Write the self-contained replay HTML of the clip (and, with `flat`, the flat-spline
+    clip beside it) and say its size on stderr."""
+    from service.replay_page import render_replay
+    from sim.replay import ReplayClip, build_replay
+
+    label = "with the CMRT" if cmrt is not None else "no anticipation (flat spline)"
+    # The result file by name only: a replay file is shared, the local path is not its business.
+    about = {"source": source if source in ("none", "superposed") else Path(source).name}
+    clips = [ReplayClip(label, ev, cmrt, about)]
+    if flat is not None:
+        clips.insert(0, ReplayClip("no anticipation (flat spline)", flat, None,
+                                   {"source": "none"}))
+    html = render_replay(build_replay(spec, clips))
+    Path(path).write_text(html, encoding="utf-8")
+    print(f"replay: {path} ({len(html.encode()) / 1e6:.3f} MB, {len(clips)} clip"
+          f"{'s' if len(clips) > 1 else ''})", file=sys.stderr)
 
 
 # ---- optimize ---------------------------------------------------------------------------------
@@ -257,6 +285,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--cmrt", metavar="RESULT.json", help="replay an optimised CMRT")
     s.add_argument("--json", action="store_true")
     s.add_argument("--trace", metavar="OUT.csv", help="write per-step traces")
+    s.add_argument("--replay", metavar="OUT.html",
+                   help="write a self-contained HTML replay of the clip (docs/replay.md)")
+    s.add_argument("--compare", action="store_true",
+                   help="with --replay and --cmrt: the flat-spline clip beside the CMRT's")
     s.set_defaults(func=cmd_simulate)
 
     o = sub.add_parser("optimize", help="optimise the CMRT of a task spec with CMA-ES")

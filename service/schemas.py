@@ -205,3 +205,33 @@ class SimulationOut(BaseModel):
 
 
 SIMULATION_EXAMPLE: dict[str, Any] = {"spec": JOB_EXAMPLE, "cmrt": None, "traces": False}
+
+
+# ---- replays (service.routers.replays; the document is sim.replay's, docs/replay.md) ----------
+class ReplayRequest(BaseModel):
+    """A replay of one clip of `spec` with the CMRT `cmrt` (null: no anticipation only); with a
+    CMRT and `compare` (the default), the flat-spline clip is simulated beside it."""
+
+    model_config = ConfigDict(extra="forbid")
+    spec: TaskSpec
+    cmrt: CmrtChoice | None = None
+    compare: bool = Field(True, strict=True,
+                          description="add the clip without anticipation (flat spline)")
+
+
+class ReplayOut(BaseModel):
+    """A replay document, schema `cmrt-replay/1` (docs/replay.md): the character's shapes to
+    scale, the props, and per clip the 100 Hz poses, CM, CM reference, CP, support and plot
+    traces with the clip's outcome."""
+
+    model_config = ConfigDict(populate_by_name=True)
+    schema_name: Literal["cmrt-replay/1"] = Field(alias="schema")
+    spec: dict[str, Any]
+    rate: float = Field(description="frames per simulated second")
+    character: dict[str, Any]
+    props: list[dict[str, Any]]
+    bodies: list[str] = Field(description="names of the pose rows: bodies, props, chain links")
+    clips: list[dict[str, Any]]
+
+
+REPLAY_EXAMPLE: dict[str, Any] = {"spec": JOB_EXAMPLE, "cmrt": None, "compare": True}

@@ -58,6 +58,33 @@ def run_clip(spec_data: dict[str, Any], params: list[float] | None, traces: bool
     return out
 
 
+def run_replay(spec_data: dict[str, Any], params: list[float] | None,
+               about: dict[str, Any] | None, compare: bool) -> dict[str, Any]:
+    """Simulate a clip for replay (in a pool process), recorded at the frame rate:
+    `{"status": "done", "replay": <sim.replay document>}`, or `failed` as `run_clip`. With
+    `params` and `compare`, the flat-spline clip (no anticipation) comes first, beside it."""
+    from optim.objective import SimObjective
+    from optim.spline import decode
+    from sim.replay import ReplayClip, build_replay
+
+    obj = SimObjective(spec_data)
+    spec = obj.spec
+    clips = []
+    try:
+        if params is None or compare:
+            clips.append(ReplayClip("no anticipation (flat spline)",
+                                    obj.evaluation(None, traces=True), None, {"source": "none"}))
+        if params is not None:
+            clips.append(ReplayClip("with the CMRT", obj.evaluation(params, traces=True),
+                                    decode(spec, params), about))
+    except SimError as err:
+        return {"status": "failed", "error": f"{type(err).__name__}: {err}"}
+    except (ArithmeticError, ValueError) as err:
+        return {"status": "failed",
+                "error": f"the simulation diverged ({type(err).__name__}: {err})"}
+    return {"status": "done", "replay": build_replay(spec, clips)}
+
+
 class SimulationBusyError(Exception):
     """Every pool process is busy and the waiting line is full."""
 
@@ -89,6 +116,12 @@ class SimulationPool:
 
     async def run(self, spec_data: dict[str, Any], params: list[float] | None, *, traces: bool,
                   frames: bool) -> dict[str, Any]:
+        """One what-if clip (`run_clip`) in the pool."""
+        return await self.call(run_clip, spec_data, params, traces, frames)
+
+    async def call(self, fn: Any, *args: Any) -> dict[str, Any]:
+        """`fn(*args)` (a picklable clip body answering `{"status": ...}`) in the pool, bounded
+        as the module docstring says."""
         with self._lock:
             if self._in_flight >= self.workers + MAX_WAITING:
                 raise SimulationBusyError
@@ -96,7 +129,7 @@ class SimulationPool:
         try:
             pool = self._get()
             fut = asyncio.get_running_loop().run_in_executor(
-                pool, run_clip, spec_data, params, traces, frames)
+                pool, fn, *args)
             try:
                 return await asyncio.wait_for(fut, timeout=self.time_limit)
             except TimeoutError:

@@ -1,0 +1,150 @@
+"""Replays: the self-contained HTML player (`service.replay_page`) or its JSON document
+(`sim.replay`, docs/replay.md) of a library CMRT on its own task, of a job's best candidate so
+far, or of a what-if clip; each with the clip without anticipation (flat spline) beside it.
+
+The clips are simulated in the API's simulation pool (`service.simulations.run_replay`), like
+`POST /simulations`. 404: unknown id; 409: a job without a best candidate yet, a CMRT stored
+without its spec, or a stored candidate whose clip fails; 422: a bad body or parameter;
+503: every simulation process is busy.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import HTMLResponse, JSONResponse
+from pydantic import ValidationError
+
+from optim.errors import ParamsError
+from optim.spline import check_params
+from service import schemas
+from service.body import read_json
+from service.deps import ServicesDep, url_for
+from service.errors import ApiError, validation_message
+from service.openapi import error_responses, json_body
+from service.replay_page import render_replay, replay_csp
+from service.routers.simulations import RETRY_AFTER_S, _params
+from service.simulations import SimulationBusyError, run_replay
+from sim.errors import SpecError
+from sim.spec import parse_spec
+
+router = APIRouter(tags=["replays"])
+log = logging.getLogger("cmrt.service.replays")
+
+Compare = Annotated[bool, Query(description="also the clip without anticipation (flat "
+                                            "spline), on the same timeline")]
+_HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}},
+               "description": "The self-contained replay page (player, data and uPlot inline)"}}
+
+
+async def _document(svc: Any, spec_data: dict[str, Any], params: list[float] | None,
+                    about: dict[str, Any] | None, compare: bool, failed_status: int
+                    ) -> dict[str, Any]:
+    try:
+        out = await svc.simulations.call(run_replay, spec_data, params, about, compare)
+    except SimulationBusyError:
+        raise ApiError(503, "simulations: every simulation process is busy; retry later",
+                       headers={"Retry-After": str(RETRY_AFTER_S)}) from None
+    if out["status"] != "done":
+        raise ApiError(failed_status, f"replay: the simulation failed ({out['error']})")
+    return out["replay"]
+
+
+def _stored(spec_data: Any, params: Any, what: str) -> tuple[dict[str, Any], list[float]]:
+    """A stored spec and parameter vector, checked (409 when they no longer fit)."""
+    try:
+        spec = parse_spec(spec_data, source=what)
+        checked = check_params(spec, params)
+    except (SpecError, ParamsError) as err:
+        raise ApiError(409, f"{what}: cannot be replayed ({err})") from None
+    return spec.model_dump(mode="json"), [float(v) for v in checked]
+
+
+async def _cmrt_doc(cmrt_id: str, request: Request, svc: Any, compare: bool) -> dict[str, Any]:
+    rec = svc.repo.get_cmrt(cmrt_id)  # store.NotFound: 404
+    if rec.spec is None:
+        raise ApiError(409, f"cmrt {cmrt_id!r}: stored without its task spec; it cannot be "
+                            "replayed on its own task")
+    spec, params = _stored(rec.spec, rec.params, f"cmrt {cmrt_id!r}")
+    about = {"source": "library", "id": rec.id, "objective": rec.objective,
+             "url": url_for(request, "get_cmrt", cmrt_id=rec.id)}
+    return await _document(svc, spec, params, about, compare, 409)
+
+
+async def _job_doc(job_id: str, request: Request, svc: Any, compare: bool) -> dict[str, Any]:
+    job = svc.repo.get_job(job_id)  # store.NotFound: 404
+    if job.best_params is None:
+        raise ApiError(409, f"job {job_id!r}: no best candidate yet ({job.status})")
+    spec, params = _stored(job.spec, job.best_params, f"job {job_id!r}")
+    about = {"source": "job", "id": job.id, "job_status": job.status,
+             "job_objective": job.best_objective,
+             "url": url_for(request, "get_job", job_id=job.id)}
+    return await _document(svc, spec, params, about, compare, 409)
+
+
+async def _simulation_doc(request: Request, svc: Any) -> dict[str, Any]:
+    data = await read_json(request, svc.settings.max_body_bytes)
+    try:
+        req = schemas.ReplayRequest.model_validate(data)
+    except ValidationError as err:
+        raise ApiError(422, validation_message(err.errors())) from None
+    params, about = _params(svc, request, req)
+    return await _document(svc, req.spec.model_dump(mode="json"), params, about, req.compare,
+                           422)
+
+
+def _html(doc: dict[str, Any]) -> HTMLResponse:
+    return HTMLResponse(render_replay(doc), headers={"content-security-policy": replay_csp()})
+
+
+@router.get("/cmrts/{cmrt_id}/replay", response_class=HTMLResponse, responses={
+    **_HTML, **error_responses(404, 409, 503)}, summary="Replay a library CMRT (HTML player)")
+async def cmrt_replay(cmrt_id: str, request: Request, svc: ServicesDep,
+                      compare: Compare = True) -> HTMLResponse:
+    """The CMRT on its own task (its stored spec), beside the clip without anticipation."""
+    return _html(await _cmrt_doc(cmrt_id, request, svc, compare))
+
+
+@router.get("/cmrts/{cmrt_id}/replay.json", response_model=schemas.ReplayOut,
+            responses=error_responses(404, 409, 503), summary="Replay a library CMRT (JSON)")
+async def cmrt_replay_json(cmrt_id: str, request: Request, svc: ServicesDep,
+                           compare: Compare = True) -> JSONResponse:
+    return JSONResponse(await _cmrt_doc(cmrt_id, request, svc, compare))
+
+
+@router.get("/jobs/{job_id}/replay", response_class=HTMLResponse, responses={
+    **_HTML, **error_responses(404, 409, 503)},
+    summary="Replay a job's best candidate so far (HTML player)")
+async def job_replay(job_id: str, request: Request, svc: ServicesDep,
+                     compare: Compare = True) -> HTMLResponse:
+    """The job's best candidate so far on the job's spec, beside the clip without
+    anticipation; 409 while the job has no candidate yet."""
+    return _html(await _job_doc(job_id, request, svc, compare))
+
+
+@router.get("/jobs/{job_id}/replay.json", response_model=schemas.ReplayOut,
+            responses=error_responses(404, 409, 503),
+            summary="Replay a job's best candidate so far (JSON)")
+async def job_replay_json(job_id: str, request: Request, svc: ServicesDep,
+                          compare: Compare = True) -> JSONResponse:
+    return JSONResponse(await _job_doc(job_id, request, svc, compare))
+
+
+@router.post("/simulations/replay", response_class=HTMLResponse, responses={
+    **_HTML, **error_responses(400, 413, 415, 422, 503)},
+    openapi_extra=json_body(schemas.ReplayRequest, example=schemas.REPLAY_EXAMPLE),
+    summary="Replay a what-if clip (HTML player)")
+async def simulation_replay(request: Request, svc: ServicesDep) -> HTMLResponse:
+    """Body `{"spec": {...}, "cmrt": <as POST /simulations> | null, "compare": true}`; a clip
+    that fails (diverges, times out) is a 422 naming the reason."""
+    return _html(await _simulation_doc(request, svc))
+
+
+@router.post("/simulations/replay.json", response_model=schemas.ReplayOut, responses=
+             error_responses(400, 413, 415, 422, 503),
+             openapi_extra=json_body(schemas.ReplayRequest, example=schemas.REPLAY_EXAMPLE),
+             summary="Replay a what-if clip (JSON)")
+async def simulation_replay_json(request: Request, svc: ServicesDep) -> JSONResponse:
+    return JSONResponse(await _simulation_doc(request, svc))
