@@ -1,5 +1,5 @@
 """`pull`: a heavy box resting on the ground, pulled toward the character through a chain held
-in its hands (paper 6.1.6, Figure 13: a 180 kg sumo pulls a 35 kg object by a 2.25 kg chain).
+in its hands (paper 6.1.6, Figure 13: a 180 kg character pulls a 35 kg object by a 2.25 kg chain).
 
 The box is a box prop on the ground with its near face `distance` m in front of the ankles
 (x = 0). The chain is `chain.links` capsule props of equal length (`chain.length` / links, the
@@ -61,7 +61,7 @@ class PullConfig(TaskConfig):
     mass, width (along x) and height are the box's, distance the x of its near face (m, the
     ankles at x = 0), friction its coefficient against the ground; `success` the displacement
     toward the character (m) that counts as pulled. The poses have no defaults: joint names
-    are the character's (examples/sumo_pull.yaml has the sumo's)."""
+    are the character's (examples/sumo_pull.yaml has them)."""
 
     type: Literal["pull"] = "pull"
     mass: Annotated[float, Field(gt=0.0, le=MAX_BOX_MASS_KG)]
