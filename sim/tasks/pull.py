@@ -30,8 +30,10 @@ import math
 from functools import cached_property
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from pydantic import Field
 
+from sim.dynamics import ModelArrays, forward_kinematics
 from sim.props import PropDef
 from sim.specbase import StrictModel
 from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
@@ -81,6 +83,8 @@ class PullConfig(TaskConfig):
             raise ValueError(f"task: character {character.name!r} names no hands to hold a "
                              "chain with")
         grip = grip_point(character, pose_offsets(self.hold, character))
+        if not all(math.isfinite(v) for v in grip):
+            raise ValueError("task.hold: no balanced standing pose holds the arms there")
         anchor = self.anchor
         if grip[0] >= anchor[0]:
             raise ValueError(f"task.distance: the box ({anchor[0]:.3f} m) must be ahead of the "
@@ -109,9 +113,6 @@ class PullConfig(TaskConfig):
 def grip_point(character: Any, pose: dict[int, float]) -> tuple[float, float]:
     """The hands' centre (m, world) in the standing state held in `pose` (the rollout's own
     standing solution, before the contacts' static sink of a fraction of a millimetre)."""
-    import numpy as np
-
-    from sim.dynamics import ModelArrays, forward_kinematics
     from sim.rollout import standing_state  # here: sim.rollout imports the task registry
 
     arrays = ModelArrays.from_character(character)
