@@ -63,7 +63,7 @@ class PullConfig(TaskConfig):
     mass, width (along x) and height are the box's, distance the x of its near face (m, the
     ankles at x = 0), friction its coefficient against the ground; `success` the displacement
     toward the character (m) that counts as pulled. The poses have no defaults: joint names
-    are the character's (examples/sumo_pull.yaml has them)."""
+    are the character's (the example specs carry them)."""
 
     type: Literal["pull"] = "pull"
     mass: Annotated[float, Field(gt=0.0, le=MAX_BOX_MASS_KG)]
