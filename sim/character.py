@@ -287,6 +287,19 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
 
 
 @lru_cache(maxsize=16)
+def character_reference(model: str) -> tuple[float, float] | None:
+    """(height m, mass kg) of `sim/data/<model>.yaml`'s `reference`, or None if the file or
+    its reference cannot be read (the loader then reports what is wrong)."""
+    if not isinstance(model, str) or not model.replace("_", "").isalnum():
+        return None
+    try:
+        ref = yaml.safe_load((DATA_DIR / f"{model}.yaml").read_text()).get("reference")
+        return _positive(ref["height"], "height"), _positive(ref["mass"], "mass")
+    except (OSError, yaml.YAMLError, AttributeError, KeyError, TypeError, CharacterError):
+        return None
+
+
+@lru_cache(maxsize=16)
 def load_character(model: str = DEFAULT_CHARACTER, height: float | None = None,
                    mass: float | None = None) -> Character:
     """Load `sim/data/<model>.yaml` (or a path), scaled to `height` m and `mass` kg."""

@@ -309,8 +309,9 @@ class Physics:
         self._prop_contact.setMu2(0.0)
         self._prop_contact.setBounce(0.0)
         self._prop_contact.setSoftCFM(CONTACT_SOFT_CFM)
-        #: Joints made at run time (a catch): (joint, prop name, body name), kept referenced.
-        self.attachments: list[tuple[ode.FixedJoint, str, str]] = []
+        #: Joints made at run time (a catch's weld, a chain's hinges): (joint, prop name,
+        #: body or prop name), kept referenced (PyODE destroys a joint whose object dies).
+        self.attachments: list[tuple[ode.FixedJoint | ode.HingeJoint, str, str]] = []
 
     def _character_geom(self, g) -> ode.GeomObject:
         body = self.bodies[g.body]
@@ -480,17 +481,38 @@ class Physics:
     def attach_prop(self, prop: str, body: str) -> ode.FixedJoint:
         """Weld prop `prop` to character body `body` in their present relative pose (a catch).
         The joint holds until `detach_all()` or the next `reset()`."""
+        return self.join(prop, body)
+
+    def join(self, prop: str, other: str,
+             anchor: tuple[float, float] | None = None) -> ode.FixedJoint | ode.HingeJoint:
+        """A joint made now between prop `prop` and `other` (a character body or another
+        prop): a weld in their present relative pose (`anchor` None) or a z-axis hinge at the
+        world point `anchor` (m), e.g. a chain's links. It holds until `detach_all()` or the
+        next `reset()`. A joined prop's own Plane2DJoint is switched off: the joints keep it in
+        the plane, which holds as long as the group it joins reaches the character or a
+        hanging prop (the character's root has its planar joint)."""
         p = self.prop(prop)
-        try:
-            b = self.bodies[self._body_index[body]]
-        except KeyError:
-            raise SimError(f"unknown body {body!r}") from None
-        j = ode.FixedJoint(self.world)
-        j.attach(p.body, b)
-        j.setFixed()
+        if other in self._body_index:
+            b, q = self.bodies[self._body_index[other]], None
+        elif other in self._prop_by_name and other != prop:
+            q = self._prop_by_name[other]
+            b = q.body
+        else:
+            raise SimError(f"unknown body {other!r}")
+        if anchor is None:
+            j = ode.FixedJoint(self.world)
+            j.attach(p.body, b)
+            j.setFixed()
+        else:
+            j = ode.HingeJoint(self.world)
+            j.attach(p.body, b)
+            j.setAnchor((float(anchor[0]), float(anchor[1]), 0.0))
+            j.setAxis((0.0, 0.0, 1.0))
         j.setFeedback(True)
-        self.attachments.append((j, prop, body))
-        p.plane.attach(None, None)  # the character's joints keep it in the plane now
+        self.attachments.append((j, prop, other))
+        for joined in (p, q):
+            if joined is not None:
+                joined.plane.attach(None, None)  # the joints keep it in the plane now
         return j
 
     def attached(self, prop: str) -> bool:
@@ -502,12 +524,13 @@ class Physics:
 
     def detach_all(self) -> None:
         """Drop every run-time joint (feedback off first: PyODE trap 1)."""
-        for j, prop, _b in self.attachments:
+        for j, prop, other in self.attachments:
             j.setFeedback(False)
             j.attach(None, None)
-            p = self.prop(prop)
-            if p.definition.hanging is None:
-                p.plane.attach(p.body, ode.environment)
+            for name in (prop, other):
+                p = self._prop_by_name.get(name)
+                if p is not None and p.definition.hanging is None:
+                    p.plane.attach(p.body, ode.environment)
         self.attachments.clear()
 
     # ---- contacts ------------------------------------------------------------------------

@@ -34,7 +34,13 @@ from typing import Annotated, Any, Union
 import yaml
 from pydantic import Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
-from sim.character import DATA_DIR, DEFAULT_CHARACTER, Character, load_character
+from sim.character import (
+    DATA_DIR,
+    DEFAULT_CHARACTER,
+    Character,
+    character_reference,
+    load_character,
+)
 from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
 from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
@@ -76,11 +82,23 @@ ControllerBlock = Annotated[
 
 
 class CharacterRef(_Strict):
-    """Which character (a file `sim/data/<model>.yaml`), scaled to a height (m), mass (kg)."""
+    """Which character (a file `sim/data/<model>.yaml`), scaled to a height (m), mass (kg).
+    A height or mass left out is the character file's own (its `reference`)."""
 
     model: Annotated[str, Field(pattern=r"^[a-z0-9_]{1,64}$")] = DEFAULT_CHARACTER
     height: Annotated[float, Field(gt=1.0, le=2.5)] = 1.75
     mass: Annotated[float, Field(gt=20.0, le=250.0)] = 70.0
+
+    @model_validator(mode="before")
+    @classmethod
+    def _file_reference(cls, data: Any) -> Any:
+        """Fill a missing height / mass from the named file (the defaults above are the
+        default character's); an unknown model is left to the field's own check."""
+        if isinstance(data, dict) and ("height" not in data or "mass" not in data):
+            ref = character_reference(data.get("model", DEFAULT_CHARACTER))
+            if ref is not None:
+                data = {"height": ref[0], "mass": ref[1], **data}
+        return data
 
     @field_validator("model")
     @classmethod

@@ -10,6 +10,7 @@ from sim.tasks.base import Task, TaskConfig
 from sim.tasks.catch import CatchConfig
 from sim.tasks.domino import DominoConfig
 from sim.tasks.pose_change import PoseChangeConfig
+from sim.tasks.pull import PullConfig
 from sim.tasks.punch import PunchConfig
 from sim.tasks.push import PushConfig
 from sim.tasks.quiet_stance import QuietStanceConfig
@@ -23,6 +24,7 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "catch": CatchConfig,
     "punch": PunchConfig,
     "domino": DominoConfig,
+    "pull": PullConfig,
 }
 
 __all__ = ["TASK_TYPES", "Task", "TaskConfig"]
