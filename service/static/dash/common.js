@@ -114,9 +114,19 @@ const CMRT = (() => {
     return new uPlot(Object.assign({width, height: 260}, opts), data, container);
   }
 
+  // A y range of at least `span` (units of the data) around the data: a flat curve (a CMRT
+  // that stayed at 0) is drawn as a line at 0, not in an arbitrary 0..100 range.
+  function minSpan(span) {
+    return (u, min, max) => {
+      if (min === null || max === null) return [-span, span];
+      const pad = Math.max(span - (max - min), 0) / 2 + (max - min) * 0.05;
+      return [min - pad, max + pad];
+    };
+  }
+
   const COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b",
                    "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"];
 
   return {TERMINAL, STATUSES, COLOURS, HttpError, headers, getJson, el, clear, setText, fmt,
-          elapsed, jobPage, api, statusBadge, header, showError, plot};
+          elapsed, jobPage, api, statusBadge, header, showError, plot, minSpan};
 })();

@@ -31,6 +31,7 @@
       dl.appendChild(el("div", {}, el("dt", {}, k), el("dd", {class: "v-" + k.replace(/ /g, "-")}, v)));
     }
     setText("title", j.name);
+    setText("spec", JSON.stringify(j.spec, null, 2));
     document.title = "CMRT job " + j.name;
     clear(document.getElementById("badge")).appendChild(CMRT.statusBadge(j.status));
     const links = clear(document.getElementById("links"));
@@ -150,7 +151,7 @@
     }
     const data = uPlot.join(parts);
     bestPlot = CMRT.plot(box, {
-      scales: {x: {time: false}},
+      scales: {x: {time: false}, y: {range: CMRT.minSpan(0.1)}},
       axes: [{label: "time in the clip (s)"}, {label: "CMRT (m)", size: 70}],
       series,
       hooks: {drawClear: [u => shadeTask(u)]},

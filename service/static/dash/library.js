@@ -111,6 +111,11 @@
     const at = document.getElementById("at").value;
     const note = document.getElementById("interp-note");
     if (!family || !along || at === "") return;
+    if (values(along).length < 2) {  // the endpoint would answer 422: say why instead
+      note.textContent = `interpolation needs two CMRTs of this family with different ${along}`;
+      clear(document.getElementById("interp-plot"));
+      return;
+    }
     const q = {family, [along]: at, along,
                extrapolate: document.getElementById("extrapolate").checked ? "true" : ""};
     for (const sel of document.querySelectorAll("#fixed select")) q[sel.dataset.key] = sel.value;
@@ -125,7 +130,7 @@
         (out.extrapolated ? " (extrapolated)" : "") + `  —  GET ${url}`;
       CMRT.plot(box, {
         height: 280,
-        scales: {x: {time: false}},
+        scales: {x: {time: false}, y: {range: CMRT.minSpan(0.1)}},
         axes: [{label: "time in the clip (s)"}, {label: "dx (m)", size: 70}],
         series: [{label: "t (s)"},
           {label: `interpolated, ${along}=${fmt(out.value, 4)}`, stroke: "#d62728", width: 3,
