@@ -29,8 +29,9 @@ def dashboard() -> HTMLResponse:
     return _page("dash/jobs.html")
 
 
-@router.get("/dashboard/jobs/{job_id}", response_class=HTMLResponse,
-            summary="Dashboard: one job's convergence (HTML)")
+# The job and library pages are shells like /docs (no data in them), so like /docs they are
+# left out of the OpenAPI document; their data endpoints are in it.
+@router.get("/dashboard/jobs/{job_id}", response_class=HTMLResponse, include_in_schema=False)
 def dashboard_job(job_id: Annotated[str, Path(max_length=64)]) -> HTMLResponse:
     """Live convergence, evaluations by state, stopping rule and best CMRT of one job (it
     reads `GET /jobs/{id}`, `.../generations?after=`, `.../evaluations?after=`, `.../best`).
@@ -38,8 +39,7 @@ def dashboard_job(job_id: Annotated[str, Path(max_length=64)]) -> HTMLResponse:
     return _page("dash/job.html")
 
 
-@router.get("/dashboard/library", response_class=HTMLResponse,
-            summary="Dashboard: the CMRT library (HTML)")
+@router.get("/dashboard/library", response_class=HTMLResponse, include_in_schema=False)
 def dashboard_library() -> HTMLResponse:
     """CMRTs by family and task parameter, overlaid, an interpolation preview and the PCA
     bases (it reads `GET /cmrts`, `/cmrts/{id}`, `/cmrts/interpolate`, `GET /bases`)."""
