@@ -26,6 +26,8 @@ from store import open_repository  # noqa: E402
 XSS = "<script>alert(1)</script>"
 #: Generations of the rendering test's job (issue 12: "a 200-generation job").
 LONG_GENERATIONS = 200
+#: Loads of that job's page whose render times are reported.
+RENDER_LOADS = 3
 #: Most time a page may take to finish loading before a test gives up, ms (not a measurement).
 LOAD_TIMEOUT_MS = 60_000
 
@@ -176,20 +178,24 @@ def test_script_in_names_is_shown_as_text_and_never_runs(server, page):
 
 
 def test_job_page_of_a_200_generation_job_renders(server, page, capsys):
-    """Rendering speed is reported, not asserted (the machine is shared)."""
-    t0 = time.perf_counter()
-    _loaded(page, f"{server.url}/dashboard/jobs/{server.ids['long']}")
-    wall_ms = (time.perf_counter() - t0) * 1000
-    rendered_ms = float(page.get_attribute("body", "data-rendered-ms"))
-    assert page.get_attribute("#conv", "data-generations") == str(LONG_GENERATIONS)
-    assert page.locator("#gens tbody tr").count() == LONG_GENERATIONS
-    assert page.locator("#eval-totals").text_content().startswith(
-        f"{LONG_GENERATIONS * 8} evaluations: {LONG_GENERATIONS * 8 - 1} done, 0 pending, "
-        f"1 failed; {LONG_GENERATIONS * 8 + 5} attempts, 5 repeated")
+    """Rendering speed is reported, not asserted (the machine is shared): three loads."""
+    rendered, walls = [], []
+    for _ in range(RENDER_LOADS):
+        t0 = time.perf_counter()
+        _loaded(page, f"{server.url}/dashboard/jobs/{server.ids['long']}")
+        walls.append((time.perf_counter() - t0) * 1000)
+        rendered.append(float(page.get_attribute("body", "data-rendered-ms")))
+        assert page.get_attribute("#conv", "data-generations") == str(LONG_GENERATIONS)
+        assert page.locator("#gens tbody tr").count() == LONG_GENERATIONS
+        assert page.locator("#eval-totals").text_content().startswith(
+            f"{LONG_GENERATIONS * 8} evaluations: {LONG_GENERATIONS * 8 - 1} done, 0 pending, "
+            f"1 failed; {LONG_GENERATIONS * 8 + 5} attempts, 5 repeated")
+        assert page.locator("#conv canvas").count() == page.locator("#best canvas").count() == 1
     assert page.errors == []
     with open("/proc/loadavg") as f:
         load = f.read().split()[:3]
     with capsys.disabled():
-        print(f"\n[dashboard] job page of a {LONG_GENERATIONS}-generation job: rendered "
-              f"{rendered_ms:.0f} ms after navigation start (goto to drawn: {wall_ms:.0f} ms), "
+        print(f"\n[dashboard] job page of a {LONG_GENERATIONS}-generation job, {RENDER_LOADS} "
+              f"loads: drawn {', '.join(f'{v:.0f}' for v in rendered)} ms after navigation "
+              f"start (goto to drawn: {', '.join(f'{v:.0f}' for v in walls)} ms), "
               f"load average {' '.join(load)}")

@@ -114,6 +114,12 @@ const CMRT = (() => {
     return new uPlot(Object.assign({width, height: 260}, opts), data, container);
   }
 
+  // The legend shows the newest point's values until the cursor moves over the plot.
+  function latest(u) {
+    const n = u.data[0].length;
+    if (n) u.setLegend({idx: n - 1});
+  }
+
   // A y range of at least `span` (units of the data) around the data: a flat curve (a CMRT
   // that stayed at 0) is drawn as a line at 0, not in an arbitrary 0..100 range.
   function minSpan(span) {
@@ -128,5 +134,5 @@ const CMRT = (() => {
                    "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"];
 
   return {TERMINAL, STATUSES, COLOURS, HttpError, headers, getJson, el, clear, setText, fmt,
-          elapsed, jobPage, api, statusBadge, header, showError, plot, minSpan};
+          elapsed, jobPage, api, statusBadge, header, showError, plot, latest, minSpan};
 })();

@@ -77,6 +77,8 @@
       series: [{label: "generation"}, {label: "sigma", stroke: "#9467bd", width: 2,
                                        value: (u, v) => fmt(v, 4)}],
     }, [g.it, g.sigma]);
+    CMRT.latest(conv);
+    CMRT.latest(sig);
   }
 
   function drawConv() {
@@ -89,6 +91,8 @@
     else {
       conv.setData([g.it, g.best, g.median, g.worst, g.bsf]);
       sig.setData([g.it, g.sigma]);
+      CMRT.latest(conv);
+      CMRT.latest(sig);
     }
   }
 
