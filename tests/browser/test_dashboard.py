@@ -179,12 +179,15 @@ def test_script_in_names_is_shown_as_text_and_never_runs(server, page):
 
 def test_job_page_of_a_200_generation_job_renders(server, page, capsys):
     """Rendering speed is reported, not asserted (the machine is shared): three loads."""
-    rendered, walls = [], []
+    rendered, walls, phases = [], [], []
     for _ in range(RENDER_LOADS):
         t0 = time.perf_counter()
         _loaded(page, f"{server.url}/dashboard/jobs/{server.ids['long']}")
         walls.append((time.perf_counter() - t0) * 1000)
         rendered.append(float(page.get_attribute("body", "data-rendered-ms")))
+        marks = dict(page.evaluate(
+            "performance.getEntriesByType('mark').map(m => [m.name, m.startTime])"))
+        phases.append(f"script {marks['cmrt-poll']:.0f}, data {marks['cmrt-fetched']:.0f}")
         assert page.get_attribute("#conv", "data-generations") == str(LONG_GENERATIONS)
         assert page.locator("#gens tbody tr").count() == LONG_GENERATIONS
         assert page.locator("#eval-totals").text_content().startswith(
@@ -197,5 +200,6 @@ def test_job_page_of_a_200_generation_job_renders(server, page, capsys):
     with capsys.disabled():
         print(f"\n[dashboard] job page of a {LONG_GENERATIONS}-generation job, {RENDER_LOADS} "
               f"loads: drawn {', '.join(f'{v:.0f}' for v in rendered)} ms after navigation "
-              f"start (goto to drawn: {', '.join(f'{v:.0f}' for v in walls)} ms), "
+              f"start (goto to drawn: {', '.join(f'{v:.0f}' for v in walls)} ms; first poll "
+              f"started / its data in, ms: {'; '.join(phases)}), "
               f"load average {' '.join(load)}")

@@ -15,7 +15,7 @@
   const g = {it: [], best: [], median: [], worst: [], bsf: [], sigma: []};
   let lastGen = -1, evalAfter = -1, bestKey = null, job = null, clip = null;
   const evals = new Map();
-  let conv = null, sig = null, bestPlot = null, timer = null;
+  let conv = null, sig = null, bestPlot = null, evalPlot = null, timer = null;
 
   // ---- summary --------------------------------------------------------------------------
   function summary(j) {
@@ -84,7 +84,8 @@
   function drawConv() {
     const box = document.getElementById("conv");
     box.setAttribute("data-generations", String(g.it.length));
-    setText("gen-count", g.it.length + " generations");
+    setText("gen-count", g.it.length + " generations" +
+            (job && !CMRT.TERMINAL.includes(job.status) ? " (live: polling every second)" : ""));
     const logWanted = document.getElementById("logy").checked && positive();
     const logNow = conv && conv.scales.y.distr === 3;
     if (!conv || logWanted !== logNow) makeConv();
@@ -117,6 +118,7 @@
     for (const r of rows) for (const k in tot) tot[k] += r[k];
     setText("eval-totals", `${tot.population} evaluations: ${tot.done} done, ${tot.pending} ` +
       `pending, ${tot.failed} failed; ${tot.attempts} attempts, ${tot.repeated} repeated`);
+    drawEvalBars();
     const tbody = clear(document.querySelector("#evals tbody"));
     for (const r of rows.slice(0, EVAL_ROWS)) {
       tbody.appendChild(el("tr", {class: r.pending ? "pending" : (r.failed ? "failed" : null)},
@@ -132,6 +134,35 @@
       after = r.generation;
     }
     evalAfter = after;
+  }
+
+  // Done / failed / pending per generation as stacked bars (each series is drawn over the
+  // previous one, so the totals go first; the legend shows each state's own count).
+  function drawEvalBars() {
+    const rows = [...evals.values()].filter(r => r.generation >= 0)
+      .sort((a, b) => a.generation - b.generation);
+    const x = rows.map(r => r.generation);
+    const own = {pending: rows.map(r => r.pending), failed: rows.map(r => r.failed),
+                 done: rows.map(r => r.done), repeated: rows.map(r => r.repeated)};
+    const data = [x, rows.map(r => r.done + r.failed + r.pending),
+                  rows.map(r => r.done + r.failed), own.done];
+    const bars = uPlot.paths.bars({size: [0.8, 30]});
+    const s = (label, key, fill) => ({label, fill, stroke: fill, width: 0, paths: bars,
+                                      points: {show: false},
+                                      value: (u, v, si, i) => i === null ? "" : own[key][i]});
+    const box = document.getElementById("eval-plot");
+    if (evalPlot && evalPlot.series.length === 4) {
+      evalPlot.setData(data);
+    } else {
+      evalPlot = CMRT.plot(box, {
+        height: 150,
+        scales: {x: {time: false}, y: {range: (u, lo, hi) => [0, Math.max(1, hi || 0)]}},
+        axes: [{label: "generation"}, {label: "evaluations", size: 70}],
+        series: [{label: "generation"}, s("pending", "pending", "#93c5fd"),
+                 s("failed", "failed", "#ef4444"), s("done", "done", "#86c98f")],
+      }, data);
+    }
+    CMRT.latest(evalPlot);
   }
 
   // ---- best curve -------------------------------------------------------------------------
@@ -177,20 +208,28 @@
   // ---- polling ----------------------------------------------------------------------------
   async function poll() {
     clearTimeout(timer);
+    if (bestKey === null) performance.mark("cmrt-poll");
     try {
-      job = await getJson(base);
+      // the four reads at once (the best curve too on the first poll), then the drawing
+      const [j, gp, ep, first] = await Promise.all([
+        getJson(base), getJson(`${base}/generations?after=${lastGen}`),
+        getJson(`${base}/evaluations?after=${evalAfter}`),
+        bestKey === null ? getJson(base + "/best") : Promise.resolve(null)]);
+      if (bestKey === null) performance.mark("cmrt-fetched");  // the first poll's reads
+      job = j;
       clip = job.spec && job.spec.clip ? job.spec.clip : null;
       summary(job);
-      const gp = await getJson(`${base}/generations?after=${lastGen}`);
       if (gp.generations.length || !conv) {
         addGenerations(gp.generations);
         drawConv();
       }
-      const ep = await getJson(`${base}/evaluations?after=${evalAfter}`);
       for (const r of ep.generations) evals.set(r.generation, r);
       drawEvals();
       const key = `${job.best_objective}|${job.cmrt_id}`;
-      if (key !== bestKey) {
+      if (first && first.best_objective === job.best_objective) {
+        drawBest(first);
+        bestKey = key;
+      } else if (key !== bestKey) {
         drawBest(await getJson(base + "/best"));
         bestKey = key;
       }
