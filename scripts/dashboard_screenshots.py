@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
                 for name, path in shots.items():
                     page.goto(srv.url + path)
                     page.wait_for_selector("body[data-state]", timeout=60_000)
-                    page.wait_for_timeout(300)  # the last plot's first frame
+                    page.wait_for_timeout(500)  # the last plot's first frame and legends
                     page.screenshot(path=str(args.out / name), full_page=True)
                     print(f"wrote {args.out / name} ({srv.url}{path})")
                 browser.close()

@@ -101,6 +101,10 @@ def test_job_page_of_a_finished_job(server, page):
     assert page.locator("#best canvas").count() == 1
     assert page.locator(".v-stopping-rule").text_content() == job["stop_rule"]
     assert page.get_attribute("#replay-link", "href") == f"/jobs/{job_id}/replay"
+    _wait(page, "document.querySelector('#conv .u-legend .u-value').textContent !== '--'")
+    legend = page.locator("#conv .u-legend .u-series .u-value").all_text_contents()
+    assert legend[0] == str(job["iterations"] - 1)  # the newest generation, at a glance
+    assert float(legend[4]) == pytest.approx(job["best_objective"], rel=1e-4)  # best so far
     final = page.locator("#evals tbody tr").first.locator("td").all_text_contents()
     assert final[:3] == ["final", "2", "2"]  # the closing re-evaluation: best and flat spline
     assert page.errors == []

@@ -107,17 +107,22 @@ const CMRT = (() => {
     box.hidden = false;
   }
 
-  // A uPlot in `container`, as wide as the container. opts: uPlot options without width.
+  // A uPlot in `container`, as wide as the container. opts: uPlot options without width;
+  // `legendLatest: true`: the legend shows the newest point's values while the cursor is off
+  // the plot (set just after each draw, whose own legend update would clear it).
   function plot(container, opts, data) {
     clear(container);
     const width = Math.max(320, container.clientWidth || 640);
-    return new uPlot(Object.assign({width, height: 260}, opts), data, container);
-  }
-
-  // The legend shows the newest point's values until the cursor moves over the plot.
-  function latest(u) {
-    const n = u.data[0].length;
-    if (n) u.setLegend({idx: n - 1});
+    const o = Object.assign({width, height: 260}, opts);
+    if (o.legendLatest) {
+      o.hooks = Object.assign({}, o.hooks);
+      o.hooks.draw = [...(o.hooks.draw || []), u => setTimeout(() => {
+        const n = u.data[0].length;  // after the draw's own legend update, which clears it
+        if (n && !(u.cursor.left >= 0)) u.setLegend({idx: n - 1});
+      }, 0)];
+    }
+    delete o.legendLatest;
+    return new uPlot(o, data, container);
   }
 
   // A y range of at least `span` (units of the data) around the data: a flat curve (a CMRT
@@ -134,5 +139,5 @@ const CMRT = (() => {
                    "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"];
 
   return {TERMINAL, STATUSES, COLOURS, HttpError, headers, getJson, el, clear, setText, fmt,
-          elapsed, jobPage, api, statusBadge, header, showError, plot, latest, minSpan};
+          elapsed, jobPage, api, statusBadge, header, showError, plot, minSpan};
 })();

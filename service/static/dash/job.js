@@ -64,6 +64,7 @@
     const s = (label, stroke, extra) => Object.assign({label, stroke, width: 2,
                                                        value: (u, v) => fmt(v, 5)}, extra);
     conv = CMRT.plot(document.getElementById("conv"), {
+      legendLatest: true,
       scales: {x: {time: false}, y: log ? {distr: 3, log: 10} : {}},
       axes: [{label: "generation"}, {label: "objective" + (log ? " (log)" : ""), size: 70}],
       series: [{label: "generation"},
@@ -71,14 +72,13 @@
                s("worst", "#d62728", {width: 1}), s("best so far", "#2ca02c", {dash: [6, 4]})],
     }, [g.it, g.best, g.median, g.worst, g.bsf]);
     sig = CMRT.plot(document.getElementById("sigma"), {
+      legendLatest: true,
       height: 160,
       scales: {x: {time: false}, y: g.sigma.every(v => v > 0) ? {distr: 3, log: 10} : {}},
       axes: [{label: "generation"}, {label: "sigma", size: 70}],
       series: [{label: "generation"}, {label: "sigma", stroke: "#9467bd", width: 2,
                                        value: (u, v) => fmt(v, 4)}],
     }, [g.it, g.sigma]);
-    CMRT.latest(conv);
-    CMRT.latest(sig);
   }
 
   function drawConv() {
@@ -92,8 +92,6 @@
     else {
       conv.setData([g.it, g.best, g.median, g.worst, g.bsf]);
       sig.setData([g.it, g.sigma]);
-      CMRT.latest(conv);
-      CMRT.latest(sig);
     }
   }
 
@@ -155,6 +153,7 @@
       evalPlot.setData(data);
     } else {
       evalPlot = CMRT.plot(box, {
+        legendLatest: true,
         height: 150,
         scales: {x: {time: false}, y: {range: (u, lo, hi) => [0, Math.max(1, hi || 0)]}},
         axes: [{label: "generation"}, {label: "evaluations", size: 70}],
@@ -162,7 +161,6 @@
                  s("failed", "failed", "#ef4444"), s("done", "done", "#86c98f")],
       }, data);
     }
-    CMRT.latest(evalPlot);
   }
 
   // ---- best curve -------------------------------------------------------------------------
