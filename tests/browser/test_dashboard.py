@@ -125,6 +125,11 @@ def test_library_page(server, page):
                            ".startsWith('duration = 0.45')")
     note = page.locator("#interp-note").text_content()
     assert "between duration = 0.4 and duration = 0.5" in note, note
+    page.fill("#at", "0.6")
+    _wait(page, "document.getElementById('interp-note').textContent.includes('outside')")
+    page.check("#extrapolate")
+    _wait(page, "document.getElementById('interp-note').textContent.includes('(extrapolated)')")
+    assert page.locator("#interp-plot canvas").count() == 1
     basis = page.locator(f".basis[data-id='{server.ids['basis']}']")
     assert basis.locator("ul.members li").count() == 3
     assert re.match(r"\d+\.\d %", basis.locator("tbody tr td:nth-child(2)").first.text_content())

@@ -116,6 +116,13 @@
       clear(document.getElementById("interp-plot"));
       return;
     }
+    const vs = values(along), extrapolate = document.getElementById("extrapolate").checked;
+    if (!extrapolate && (+at < vs[0] || +at > vs[vs.length - 1])) {  // the endpoint's 422
+      note.textContent = `${along} = ${at} is outside the library's ${fmt(vs[0], 4)} .. ` +
+                         `${fmt(vs[vs.length - 1], 4)}: tick "extrapolate" to go beyond`;
+      clear(document.getElementById("interp-plot"));
+      return;
+    }
     const q = {family, [along]: at, along,
                extrapolate: document.getElementById("extrapolate").checked ? "true" : ""};
     for (const sel of document.querySelectorAll("#fixed select")) q[sel.dataset.key] = sel.value;
