@@ -110,6 +110,41 @@ class GenerationPage(BaseModel):
     generations: list[GenerationOut]
 
 
+class EvaluationSummary(BaseModel):
+    """One generation's evaluations: how many in each state, and the attempts they took."""
+
+    generation: int = Field(description="-1: the final re-evaluation (best and flat spline)")
+    population: int
+    done: int
+    pending: int
+    failed: int
+    attempts: int
+    repeated: int = Field(description="attempts beyond the first (a crashed or lost run)")
+
+
+class EvaluationSummaryPage(BaseModel):
+    job_id: str
+    status: str
+    after: int
+    generations: list[EvaluationSummary]
+
+
+class JobBest(BaseModel):
+    """A job's best candidate so far, decoded on its spec (nulls before its first generation)."""
+
+    job_id: str
+    status: str
+    iterations: int
+    best_objective: float | None
+    params: list[float] | None
+    knot_times: list[float] | None
+    values: list[float] | None = Field(description="horizontal knot values, m")
+    vertical_values: list[float] | None = Field(description="vertical knot values, m (or null)")
+    curve: dict[str, list[float]] | None = Field(
+        description='{"t": [s], "dx": [m](, "dy": [m])}: the sampled curve')
+    cmrt_id: str | None
+
+
 class CmrtSummary(BaseModel):
     id: str
     url: str
@@ -128,6 +163,26 @@ class CmrtSummary(BaseModel):
 
 class CmrtPage(BaseModel):
     items: list[CmrtSummary]
+    total: int
+    limit: int
+    offset: int
+
+
+class BasisOut(BaseModel):
+    id: str
+    url: str
+    family: str
+    k: int
+    mean: list[float]
+    components: list[list[float]]
+    variance_explained: list[float]
+    members: list[str]
+    box: Any = None
+    created_at: datetime
+
+
+class BasisPage(BaseModel):
+    items: list[BasisOut]
     total: int
     limit: int
     offset: int

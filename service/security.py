@@ -7,12 +7,14 @@
   required on every state-changing request and, unless `CMRT_API_PUBLIC_READS=true`, on the
   read-only data endpoints too (401 otherwise, compared in constant time). Always open: `/health`
   (state only, for orchestrators), the page shells `/dashboard` and `/docs`, their `/static`
-  assets and `/openapi.json`; they hold no data, and the dashboard sends the token itself.
+  assets and `/openapi.json`; they hold no data, and the dashboard sends the token itself
+  (`/dashboard/...`: the job and library pages, shells too).
 - Cross-site requests: a state-changing request a browser marks `Sec-Fetch-Site: cross-site` is
   refused (403); bodies must be `application/json` (415, `service.body`), which a cross-origin
   page cannot send without a CORS preflight, and the API grants no CORS.
 - Headers on every response: `X-Content-Type-Options: nosniff`, `X-Frame-Options: DENY`,
-  `Referrer-Policy: no-referrer` and a Content-Security-Policy: `PAGE_CSP` on the dashboard,
+  `Referrer-Policy: no-referrer` and a Content-Security-Policy: `PAGE_CSP` on the dashboard
+  (every `/dashboard...` page),
   `DOCS_CSP` on /docs (Swagger UI sets inline styles), `API_CSP` on everything else; each
   forbids framing (`frame-ancestors 'none'`).
 """
@@ -36,7 +38,7 @@ ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 #: Paths served to anyone even with a token set (no data behind them).
 OPEN_PATHS = frozenset({"/health", "/dashboard", "/docs", "/openapi.json", "/"})
-OPEN_PREFIXES = ("/static/",)
+OPEN_PREFIXES = ("/static/", "/dashboard/")
 
 PAGE_CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; "
             "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
@@ -103,7 +105,8 @@ class HttpEdge:
             await self.asgi(scope, receive, send)
             return
         path, method = scope["path"], scope["method"]
-        csp = _CSP_BY_PATH.get(path, API_CSP).encode()
+        csp = _CSP_BY_PATH.get(path, PAGE_CSP if path.startswith("/dashboard/")
+                               else API_CSP).encode()
 
         async def send_with_headers(message: dict[str, Any]) -> None:
             if message["type"] == "http.response.start":

@@ -43,7 +43,8 @@ def job_out(job: Any, request: Request, cmrt_id: str | None = None) -> dict[str,
             "generations": url_for(request, "job_generations", job_id=job.id),
             "evaluations": url_for(request, "job_evaluations", job_id=job.id),
             "cancel": url_for(request, "cancel_job", job_id=job.id),
-            "dashboard": url_for(request, "dashboard") + f"?job={job.id}",
+            "dashboard": url_for(request, "dashboard_job", job_id=job.id),
+            "best": url_for(request, "job_best", job_id=job.id),
         },
     }
 

@@ -206,6 +206,13 @@ class EvaluationRepository(abc.ABC):
     def evaluation_counts(self, job_id: str, generation: int) -> GenerationCounts:
         """Pending / done / failed counts of a generation."""
 
+    @abc.abstractmethod
+    def evaluation_summary(self, job_id: str, *, after: int = -1) -> list[dict[str, int]]:
+        """Per generation with evaluations (generation > `after`, plus the final re-evaluation,
+        generation -1, whenever it exists), in one query: `{"generation", "population",
+        "done", "pending", "failed", "attempts", "repeated"}` (`repeated`: attempts beyond the
+        first, summed), final generation first, then ascending. Raises NotFound."""
+
 
 class SqlEvaluations(SqlBase, EvaluationRepository):
     @property
@@ -372,4 +379,25 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
     def evaluation_counts(self, job_id, generation):
         with self._read() as s:
             return self._counts(s, job_id, generation)
+
+    def evaluation_summary(self, job_id, *, after=-1):
+        ev = Evaluation
+        with self._read() as s:
+            self._require_job(s, job_id)
+            rows = s.execute(
+                select(
+                    ev.generation,
+                    func.count(),
+                    func.sum(case((ev.status == DONE, 1), else_=0)),
+                    func.sum(case((ev.status == PENDING, 1), else_=0)),
+                    func.sum(case((ev.status == EVAL_FAILED, 1), else_=0)),
+                    func.sum(ev.attempts),
+                    func.sum(case((ev.attempts > 1, ev.attempts - 1), else_=0)),
+                )
+                .where(ev.job_id == job_id, (ev.generation > after) | (ev.generation == -1))
+                .group_by(ev.generation)
+                .order_by(ev.generation)
+            ).all()
+        keys = ("generation", "population", "done", "pending", "failed", "attempts", "repeated")
+        return [{k: int(v or 0) for k, v in zip(keys, r, strict=True)} for r in rows]
 

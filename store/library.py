@@ -86,6 +86,12 @@ class LibraryRepository(abc.ABC):
         of the length of `mean`."""
 
     @abc.abstractmethod
+    def list_bases(
+        self, family: str | None = None, *, limit: int | None = None, offset: int = 0
+    ) -> tuple[list[BasisRecord], int]:
+        """PCA bases (of one family if given), newest first, and their total count."""
+
+    @abc.abstractmethod
     def get_basis(self, basis_id: str) -> BasisRecord:
         """The basis; raises NotFound."""
 
@@ -204,6 +210,14 @@ class SqlLibrary(SqlBase, LibraryRepository):
         with self._write() as s:
             s.add(row)
             return row.id
+
+    def list_bases(self, family=None, *, limit=None, offset=0):
+        conds = [] if family is None else [Basis.family == family]
+        with self._read() as s:
+            total = s.scalar(select(func.count()).select_from(Basis).where(*conds)) or 0
+            q = select(Basis).where(*conds).order_by(Basis.created_at.desc(), Basis.id)
+            rows = s.scalars(q.limit(limit).offset(offset)).all()
+            return [_basis_record(b) for b in rows], int(total)
 
     def get_basis(self, basis_id):
         with self._read() as s:

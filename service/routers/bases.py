@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
 from optim.errors import BasisError
 from service import schemas
 from service.body import read_json
-from service.deps import RepoDep, SettingsDep
+from service.deps import MAX_OFFSET, RepoDep, SettingsDep
 from service.errors import ApiError, validation_message
 from service.openapi import error_responses, json_body
 from service.views import basis_out
@@ -38,6 +38,22 @@ async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -
     body = basis_out(repo.get_basis(basis_id), request)
     return JSONResponse(json.loads(json.dumps(body, default=str)), status_code=201,
                         headers={"Location": body["url"]})
+
+
+@router.get("", response_model=schemas.BasisPage, summary="List PCA bases",
+            responses=error_responses(422))
+def list_bases(
+    request: Request,
+    repo: RepoDep,
+    family: Annotated[str | None, Query(max_length=100)] = None,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
+) -> dict[str, Any]:
+    """Newest first: each basis' variance explained per component and its members (library
+    CMRT ids)."""
+    items, total = repo.list_bases(family, limit=limit, offset=offset)
+    return {"items": [basis_out(b, request) for b in items], "total": total,
+            "limit": limit, "offset": offset}
 
 
 @router.get("/{basis_id}", summary="One PCA basis", responses=error_responses(404))

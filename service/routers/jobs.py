@@ -8,6 +8,7 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
 from optim.errors import BasisError
+from optim.spline import decode, sample_curve
 from service import schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
@@ -137,26 +138,45 @@ def job_generations(
             "generations": [generation_out(g) for g in gens]}
 
 
-@router.get("/{job_id}/evaluations",
+@router.get("/{job_id}/evaluations", response_model=schemas.EvaluationSummaryPage,
             summary="Evaluation bookkeeping per generation (counts and attempts)",
             responses=error_responses(404))
-def job_evaluations(job_id: str, repo: RepoDep) -> dict[str, Any]:
+def job_evaluations(
+    job_id: str,
+    repo: RepoDep,
+    after: Annotated[int, Query(
+        ge=-1, le=MAX_OFFSET,
+        description="only generations after this one (-1: all); the final re-evaluation "
+                    "(generation -1) is always included once it exists")] = -1,
+) -> dict[str, Any]:
+    """Per generation: population, done / pending / failed, attempts and repeated attempts
+    (one query). Poll with `after` = the newest generation that had nothing pending."""
     job = repo.get_job(job_id)
-    out = []
-    for g in [-1, *range(job.iterations + 1)]:
-        rows = repo.evaluations(job_id, g)
-        if not rows:
-            continue
-        out.append({
-            "generation": g,
-            "population": len(rows),
-            "done": sum(r.status == "done" for r in rows),
-            "pending": sum(r.status == "pending" for r in rows),
-            "failed": sum(r.status == "failed" for r in rows),
-            "attempts": sum(r.attempts for r in rows),
-            "repeated": sum(max(0, r.attempts - 1) for r in rows),
-        })
-    return {"job_id": job_id, "status": job.status, "generations": out}
+    return {"job_id": job_id, "status": job.status, "after": after,
+            "generations": repo.evaluation_summary(job_id, after=after)}
+
+
+@router.get("/{job_id}/best", response_model=schemas.JobBest,
+            summary="The best candidate so far as a CMRT curve",
+            responses=error_responses(404))
+def job_best(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
+    """The job's best candidate so far (or finished with), decoded on the job's spec: knot
+    times, values and the sampled curve (`null` until a generation has been recorded)."""
+    job = repo.get_job(job_id)
+    out: dict[str, Any] = {"job_id": job_id, "status": job.status,
+                           "iterations": job.iterations,
+                           "best_objective": job.best_objective, "params": job.best_params,
+                           "knot_times": None, "values": None, "vertical_values": None,
+                           "curve": None,
+                           "cmrt_id": job_cmrt_id(repo, job)}
+    if job.best_params is not None:
+        spline = decode(parse_spec(job.spec, "spec"), job.best_params)
+        out["knot_times"] = [float(v) for v in spline.knot_times]
+        out["values"] = [float(v) for v in spline.values]
+        if spline.vertical_values is not None:
+            out["vertical_values"] = [float(v) for v in spline.vertical_values]
+        out["curve"] = sample_curve(spline)
+    return out
 
 
 @router.post("/{job_id}/cancel", status_code=202, summary="Cancel a job",

@@ -142,13 +142,20 @@ def test_health_openapi_dashboard(client):
               "/cmrts", "/cmrts/{cmrt_id}", "/cmrts/interpolate", "/bases", "/bases/{basis_id}",
               "/health"):
         assert p in paths
-    page = client.get("/dashboard")
-    assert page.status_code == 200 and '<script src="/static/dashboard.js">' in page.text
-    script = client.get("/static/dashboard.js")
+    pages = {"/dashboard": "jobs.js", "/dashboard/jobs/x": "job.js",
+             "/dashboard/library": "library.js"}
+    for path, script_name in pages.items():
+        page = client.get(path)
+        assert page.status_code == 200, path
+        assert f'<script src="/static/dash/{script_name}">' in page.text, path
+    script = client.get("/static/dash/job.js")
     assert script.status_code == 200 and "/generations?after=" in script.text
-    for text in (page.text, script.text, client.get("/static/dashboard.css").text):
-        assert "http://" not in text.replace("http://www.w3.org/2000/svg", "")
-        assert "https://" not in text
+    texts = [client.get(p).text for p in pages]
+    texts += [client.get(f"/static/dash/{n}").text
+              for n in ("common.js", "jobs.js", "job.js", "library.js", "dash.css")]
+    for text in texts:  # no CDN, nothing fetched from elsewhere
+        assert "http://" not in text and "https://" not in text
+        assert "innerHTML" not in text  # user text goes through textContent only
 
 
 def test_budget_is_shown_and_a_job_above_the_ceiling_is_refused(client, repo):

@@ -74,7 +74,7 @@ def test_request_bodies_are_documented(client):
     ("/jobs", "GET, HEAD, OPTIONS, POST"),
     ("/jobs/abc", "GET, HEAD, OPTIONS"),
     ("/jobs/abc/cancel", "OPTIONS, POST"),
-    ("/bases", "OPTIONS, POST"),
+    ("/bases", "GET, HEAD, OPTIONS, POST"),
     ("/cmrts/interpolate", "GET, HEAD, OPTIONS"),
     ("/health", "GET, HEAD, OPTIONS"),
 ])

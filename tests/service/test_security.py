@@ -61,7 +61,8 @@ def test_token_guards_writes_and_reads(closed_client):
     r = c.post("/jobs", json=bend_spec(), headers=_auth())
     assert r.status_code == 202
     assert c.get("/jobs", headers=_auth()).json()["total"] == 1
-    for path in ("/health", "/dashboard", "/docs", "/openapi.json", "/static/dashboard.js"):
+    for path in ("/health", "/dashboard", "/dashboard/jobs/x", "/dashboard/library", "/docs",
+                 "/openapi.json", "/static/dash/job.js"):
         assert c.get(path).status_code == 200, path
 
 
@@ -165,9 +166,10 @@ def test_security_headers(open_client):
         assert r.headers["x-content-type-options"] == "nosniff", path
         assert r.headers["x-frame-options"] == "DENY", path
         assert "frame-ancestors 'none'" in r.headers["content-security-policy"], path
-    page = open_client.get("/dashboard")
-    assert page.headers["content-security-policy"] == PAGE_CSP
-    assert "<script>" not in page.text and "style=" not in page.text  # nothing inline
+    for path in ("/dashboard", "/dashboard/jobs/x", "/dashboard/library"):
+        page = open_client.get(path)
+        assert page.headers["content-security-policy"] == PAGE_CSP, path
+        assert "<script>" not in page.text and "style=" not in page.text  # nothing inline
 
 
 def test_docs_are_served_from_the_project(open_client):
