@@ -287,6 +287,14 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
 
 
 @lru_cache(maxsize=16)
+def reference_size(model: str = DEFAULT_CHARACTER) -> tuple[float, float]:
+    """(height m, mass kg) of `sim/data/<model>.yaml`'s `reference`: the size a spec that names
+    the model without a height or mass gets."""
+    ch = load_character(model)
+    return ch.height, ch.total_mass
+
+
+@lru_cache(maxsize=16)
 def load_character(model: str = DEFAULT_CHARACTER, height: float | None = None,
                    mass: float | None = None) -> Character:
     """Load `sim/data/<model>.yaml` (or a path), scaled to `height` m and `mass` kg."""

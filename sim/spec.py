@@ -22,13 +22,14 @@ Units: seconds, metres, newtons, kilograms; joint angles in specs are in degrees
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Annotated, Any, Union
 
 import yaml
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from sim.character import DATA_DIR, DEFAULT_CHARACTER, Character, load_character
+from sim.character import DATA_DIR, DEFAULT_CHARACTER, Character, load_character, reference_size
 from sim.errors import CharacterError, SpecError
 from sim.specbase import StrictModel
 from sim.tasks import TASK_TYPES
@@ -43,6 +44,7 @@ MAX_CLIP_SECONDS = 20.0
 MIN_COP_BOX_WIDTH = 0.005
 
 _Strict = StrictModel
+_MODEL_NAME = re.compile(r"[a-z0-9_]{1,64}")
 #: The `task` field: one of the registered task types, chosen by its `type`.
 TaskBlock = Annotated[Union[tuple(TASK_TYPES.values())], Field(discriminator="type")]  # noqa: UP007
 #: Blocks of the pre-registry form, by task name.
@@ -50,11 +52,29 @@ _LEGACY_BLOCKS = {"push": "push", "pose_change": "pose_change", "sequence": "mot
 
 
 class CharacterRef(_Strict):
-    """Which character (a file `sim/data/<model>.yaml`), scaled to a height (m), mass (kg)."""
+    """Which character (a file `sim/data/<model>.yaml`), scaled to a height (m), mass (kg).
+    A height or mass not given is the file's own (`reference`: 1.75 m, 70 kg for the
+    default humanoid)."""
 
     model: Annotated[str, Field(pattern=r"^[a-z0-9_]{1,64}$")] = DEFAULT_CHARACTER
     height: Annotated[float, Field(gt=1.0, le=2.5)] = 1.75
     mass: Annotated[float, Field(gt=20.0, le=250.0)] = 70.0
+
+    @model_validator(mode="before")
+    @classmethod
+    def _file_reference(cls, data: Any) -> Any:
+        """Missing height / mass: the named file's reference size (checked like given ones)."""
+        if not isinstance(data, dict) or ("height" in data and "mass" in data):
+            return data
+        model = data.get("model", DEFAULT_CHARACTER)
+        if not isinstance(model, str) or not (DATA_DIR / f"{model}.yaml").is_file() or not \
+                _MODEL_NAME.fullmatch(model):
+            return data  # the field validators report the bad model
+        try:
+            height, mass = reference_size(model)
+        except CharacterError:
+            return data  # reported when the character is loaded
+        return {"height": height, "mass": mass, **data}
 
     @field_validator("model")
     @classmethod
