@@ -14,6 +14,7 @@ from sim.tasks.punch import PunchConfig
 from sim.tasks.push import PushConfig
 from sim.tasks.quiet_stance import QuietStanceConfig
 from sim.tasks.sequence import SequenceConfig
+from sim.tasks.tire import TireDodgeConfig, TireHitConfig
 
 TASK_TYPES: dict[str, type[TaskConfig]] = {
     "quiet_stance": QuietStanceConfig,
@@ -23,6 +24,8 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "catch": CatchConfig,
     "punch": PunchConfig,
     "domino": DominoConfig,
+    "tire_hit": TireHitConfig,
+    "tire_dodge": TireDodgeConfig,
 }
 
 __all__ = ["TASK_TYPES", "Task", "TaskConfig"]
