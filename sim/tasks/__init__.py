@@ -14,7 +14,8 @@ from sim.tasks.punch import PunchConfig
 from sim.tasks.push import PushConfig
 from sim.tasks.quiet_stance import QuietStanceConfig
 from sim.tasks.sequence import SequenceConfig
-from sim.tasks.tire import TireDodgeConfig, TireHitConfig
+from sim.tasks.tire_dodge import TireDodgeConfig
+from sim.tasks.tire_hit import TireHitConfig
 
 TASK_TYPES: dict[str, type[TaskConfig]] = {
     "quiet_stance": QuietStanceConfig,

@@ -1,5 +1,6 @@
-"""`tire_hit` and `tire_dodge`: a bouncing tire flies at the character (paper 6.1.7-6.1.8,
-Figures 14-15: a 32 kg tire and a 180 kg lion).
+"""The bouncing tire shared by the `tire_hit` and `tire_dodge` task types (their own modules
+`sim.tasks.tire_hit`, `sim.tasks.tire_dodge`): a bouncing tire flies at the character (paper
+6.1.7-6.1.8, Figures 14-15: a 32 kg tire and a 180 kg lion).
 
 The tire is a `disc` prop (an annulus turning in the plane, `sim.props`) whose contacts bounce
 with its `restitution` (ground, the character's contact geoms). At `launch.release` (clip time,
@@ -24,7 +25,7 @@ reach the character only through ODE's contacts with the character's contact geo
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from pydantic import Field
 
@@ -75,7 +76,7 @@ class Motion(StrictModel):
     duration: Annotated[float, Field(gt=0.0, le=10.0)] | None = None
 
 
-class _TireConfig(TaskConfig):
+class TireConfig(TaskConfig):
     """Fields shared by `tire_hit` and `tire_dodge` (module docstring)."""
 
     tire: Tire = Tire()
@@ -107,31 +108,6 @@ class _TireConfig(TaskConfig):
                 "vertical": self.launch.vertical, "height": self.launch.height}
 
 
-class TireHitConfig(_TireConfig):
-    """`task: {type: tire_hit, launch: {...}, tire?: {...}, motions?: [...]}`: the paws strike
-    the tire."""
-
-    type: Literal["tire_hit"] = "tire_hit"
-
-    def check(self, spec: Any, character: Any) -> None:
-        if not character.hands:
-            raise ValueError(f"task: character {character.name!r} names no hands to hit with")
-        super().check(spec, character)
-
-    def build(self, spec: Any, character: Any) -> Task:
-        return TireTask(spec, character, hit=True)
-
-
-class TireDodgeConfig(_TireConfig):
-    """`task: {type: tire_dodge, launch: {...}, tire?: {...}, motions?: [...]}`: the tire must
-    pass without touching the character."""
-
-    type: Literal["tire_dodge"] = "tire_dodge"
-
-    def build(self, spec: Any, character: Any) -> Task:
-        return TireTask(spec, character, hit=False)
-
-
 class TireTask(Task):
     """The tire prop, its release, the motions, and the touch detection (module docstring)."""
 
@@ -143,7 +119,7 @@ class TireTask(Task):
 
         super().__init__(spec, character)
         self._character_kind = PROP_CHARACTER
-        cfg: _TireConfig = spec.task
+        cfg: TireConfig = spec.task
         self.cfg = cfg
         self.hit = hit
         tire, launch = cfg.tire, cfg.launch
