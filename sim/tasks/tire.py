@@ -1,6 +1,6 @@
 """The bouncing tire shared by the `tire_hit` and `tire_dodge` task types (their own modules
 `sim.tasks.tire_hit`, `sim.tasks.tire_dodge`): a bouncing tire flies at the character (paper
-6.1.7-6.1.8, Figures 14-15: a 32 kg tire and a 180 kg lion).
+6.1.7-6.1.8, Figures 14-15: a 32 kg tire and a 180 kg quadruped standing on its hind feet).
 
 The tire is a `disc` prop (an annulus turning in the plane, `sim.props`) whose contacts bounce
 with its `restitution` (ground, the character's contact geoms). At `launch.release` (clip time,

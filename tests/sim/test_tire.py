@@ -187,3 +187,35 @@ def test_tire_is_released_with_its_launch_velocity(hit_data):
     assert body.getAngularVel()[2] == pytest.approx(launch.toward / spec.task.tire.radius)
     assert math.isclose(body.getPosition()[1], launch.height + vy * DT, abs_tol=1e-9)
     sim.close()
+
+
+# ---- the lion's scenes without a CMRT (docs/physics.md, "The tire") ---------------------------
+def test_lion_hit_without_cmrt_falls_backward_at_the_contact(hit_data):
+    sim = Rollout(parse_spec(hit_data))
+    ev = sim.run()
+    task = sim.task
+    sim.close()
+    print(f"lion_hit, no CMRT: paw hit at {task.hit_time:.3f} s, fell at {ev.fall_time:.3f} s "
+          f"({ev.fall_reason}, {ev.fall_direction}), peak contact {task.peak_force:.0f} N")
+    assert ev.task_success and task.hit_time is not None
+    assert ev.fell and ev.fall_direction == "backward"
+    # "at the contact": within 0.1 s of the paw meeting the tire, in the task window.
+    assert 4.0 <= task.hit_time <= ev.fall_time <= task.hit_time + 0.1
+
+
+def test_lion_dodge_scene_needs_the_duck(dodge_data):
+    """Standing still, the tire hits the head and the lion falls backward; ducking (the pose
+    change alone, no CMRT) it passes untouched and the lion stands: in this model the paper's
+    "pose change alone is not enough" does not hold (docs/physics.md)."""
+    still = copy.deepcopy(dodge_data)
+    still["task"]["motions"] = []
+    sim = Rollout(parse_spec(still))
+    ev = sim.run()
+    touched = sim.task.touch_body
+    sim.close()
+    assert touched == "head" and not ev.task_success
+    assert ev.fell and ev.fall_direction == "backward"
+    sim = Rollout(parse_spec(dodge_data))
+    ev = sim.run()
+    sim.close()
+    assert ev.task_success and not ev.fell
