@@ -289,9 +289,10 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
 @lru_cache(maxsize=16)
 def reference_size(model: str = DEFAULT_CHARACTER) -> tuple[float, float]:
     """(height m, mass kg) of `sim/data/<model>.yaml`'s `reference`: the size a spec that names
-    the model without a height or mass gets."""
-    ch = load_character(model)
-    return ch.height, ch.total_mass
+    the model without a height or mass gets (the file unscaled)."""
+    ch = load_character(model)  # validates the file, `reference` included
+    ref = yaml.safe_load((DATA_DIR / f"{model}.yaml").read_text())["reference"]
+    return ch.height, float(ref["mass"])
 
 
 @lru_cache(maxsize=16)

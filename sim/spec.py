@@ -67,8 +67,8 @@ class CharacterRef(_Strict):
         if not isinstance(data, dict) or ("height" in data and "mass" in data):
             return data
         model = data.get("model", DEFAULT_CHARACTER)
-        if not isinstance(model, str) or not (DATA_DIR / f"{model}.yaml").is_file() or not \
-                _MODEL_NAME.fullmatch(model):
+        if not isinstance(model, str) or not _MODEL_NAME.fullmatch(model) or not (
+                DATA_DIR / f"{model}.yaml").is_file():
             return data  # the field validators report the bad model
         try:
             height, mass = reference_size(model)
