@@ -31,7 +31,8 @@ Choices, with the PyODE traps they avoid (docs/physics.md):
   character's geoms collide with props only (the feet's ground contacts are made as above).
   ODE's box contacts come in pairs mirrored across the plane (z = +-depth / 2); only those at
   z >= 0 are kept and moved to z = 0 (trap 5). Prop contacts: mu = PROP_FRICTION_MU (or the
-  prop's own) along the in-plane tangent, the same soft CFM as the feet, bounce 0.
+  prop's own) along the in-plane tangent, the same soft CFM as the feet, bounce 0 (a prop with a
+  `restitution` bounces: ODE's bounce on a rigid contact; docs/physics.md, "Restitution").
 """
 
 from __future__ import annotations
@@ -52,6 +53,11 @@ WORLD_CFM = 1e-6
 WORLD_ERP = 0.2
 CONTACT_SOFT_CFM = 7e-5
 FRICTION_MU = 1.0  # foot-ground friction coefficient
+#: m/s: a prop impact slower than this along the normal does not bounce (ODE's bounce_vel):
+#: a resting prop's contact stays plastic instead of chattering.
+BOUNCE_MIN_SPEED = 0.05
+#: CFM of a bouncing prop contact: hard, so that the rebound is the restitution's.
+BOUNCE_CFM = 1e-8
 CONTACT_MARGIN = 0.0005  # m: a heel/toe within this height of the ground gets a contact
 #: Divergence: a body faster than this (m/s) or spinning faster than this (rad/s), or any
 #: non-finite state, is not a simulation any more.
@@ -122,7 +128,7 @@ class Prop:
         self.body.setMass(mass)
         if d.shape == "box":
             self.geom = ode.GeomBox(space, (d.size[0], d.size[1], PROP_DEPTH))
-        elif d.shape == "sphere":
+        elif d.shape in ("sphere", "disc"):  # a disc's section by the plane is this circle
             self.geom = ode.GeomSphere(space, d.size[0])
         else:
             self.geom = ode.GeomCapsule(space, d.size[0], d.size[1])
@@ -309,6 +315,7 @@ class Physics:
         self._prop_contact.setMu2(0.0)
         self._prop_contact.setBounce(0.0)
         self._prop_contact.setSoftCFM(CONTACT_SOFT_CFM)
+        self._bounce_contacts: dict[float, ode.Contact] = {}
         #: Joints made at run time (a catch's weld, a chain's hinges): (joint, prop name,
         #: body or prop name), kept referenced (PyODE destroys a joint whose object dies).
         self.attachments: list[tuple[ode.FixedJoint | ode.HingeJoint, str, str]] = []
@@ -566,9 +573,11 @@ class Physics:
         else:
             kind, other = PROP_CHARACTER, n2
         mu = self._prop_by_name[n1].definition.friction
+        bounce = self._prop_by_name[n1].definition.restitution
         if other in self._prop_by_name:
             mu = min(mu, self._prop_by_name[other].definition.friction)
-        c = self._prop_contact
+            bounce = max(bounce, self._prop_by_name[other].definition.restitution)
+        c = self._prop_contact if bounce == 0.0 else self._bouncing_contact(bounce)
         c.setMu(mu)
         for con in found:
             pos, normal, depth, _ga, _gb = con.getContactGeomParams()
@@ -587,6 +596,25 @@ class Physics:
             j.attach(b1, b2 if b2 is not None else ode.environment)
             j.setFeedback(True)
             self.prop_contacts.append((j, kind, n1, other, (pos[0], pos[1])))
+
+    def _bouncing_contact(self, restitution: float) -> ode.Contact:
+        """The contact of a prop with a restitution: rigid, with ODE's bounce (a separate
+        object per restitution: plastic contacts stay as they were, bit for bit). Its CFM is
+        BOUNCE_CFM, not the soft ground CFM: a soft contact's damping absorbs the rebound (a
+        32 kg disc dropped 1.15 m with e = 0.9 rebounded to 1 % of its height with 7e-5), and
+        even the world's 1e-6 let the impact impulse sink into the constraint (0.707 of the
+        height for e^2 = 0.81; 0.809 with 1e-8; docs/physics.md, "Restitution")."""
+        c = self._bounce_contacts.get(restitution)
+        if c is None:
+            c = ode.Contact()
+            c.setMode(ode.ContactApprox1 | ode.ContactSoftCFM | ode.ContactMu2
+                      | ode.ContactFDir1 | ode.ContactBounce)
+            c.setMu2(0.0)
+            c.setSoftCFM(BOUNCE_CFM)
+            c.setBounce(restitution)
+            c.setBounceVel(BOUNCE_MIN_SPEED)
+            self._bounce_contacts[restitution] = c
+        return c
 
     def collide_props(self) -> None:
         """Contact joints for every prop touching the ground, a prop or a character geom."""

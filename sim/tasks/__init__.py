@@ -15,6 +15,8 @@ from sim.tasks.punch import PunchConfig
 from sim.tasks.push import PushConfig
 from sim.tasks.quiet_stance import QuietStanceConfig
 from sim.tasks.sequence import SequenceConfig
+from sim.tasks.tire_dodge import TireDodgeConfig
+from sim.tasks.tire_hit import TireHitConfig
 
 TASK_TYPES: dict[str, type[TaskConfig]] = {
     "quiet_stance": QuietStanceConfig,
@@ -25,6 +27,8 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "punch": PunchConfig,
     "domino": DominoConfig,
     "pull": PullConfig,
+    "tire_hit": TireHitConfig,
+    "tire_dodge": TireDodgeConfig,
 }
 
 __all__ = ["TASK_TYPES", "Task", "TaskConfig"]

@@ -28,7 +28,7 @@ def test_example_loads(path):
     spec = load_spec(path)
     assert isinstance(spec, TaskSpec)
     assert spec.clip.length > 0
-    assert spec.cmrt_dimension == 2 * spec.cmrt.knots
+    assert spec.cmrt_dimension == (3 if spec.cmrt.vertical else 2) * spec.cmrt.knots
 
 
 def test_example_contents():
