@@ -39,8 +39,8 @@ def test_pd_clip_is_the_direct_rollout(client, controller):
     ({"type": "pd"}, "spec.controller: must be a mapping whose `type` (default momentum) is "
                      "one of momentum, pd_parent, pd_world"),
     ({"type": "pd_world", "k2": -1.0}, "spec.controller.pd_world.k2: Input should be greater"),
-    ({"type": "momentum", "stepping": True},
-     "spec.controller.momentum.stepping: Value error, stepping is not yet available"),
+    ({"type": "momentum", "stepping": True, "response_delay": -1},
+     "spec.controller.momentum.response_delay: Input should be greater than or equal to 0"),
 ])
 def test_bad_controller_block_is_422(client, controller, needle):
     r = client.post("/simulations", json={"spec": {**QUIET, "controller": controller}})
