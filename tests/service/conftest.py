@@ -47,3 +47,16 @@ def http_client(config, repo, local_executor):
     with TestClient(create_app(config, repo=repo, executor=local_executor,
                                run_drivers=False)) as c:
         yield c
+
+
+@pytest.fixture
+def client(config, repo, local_executor):
+    """The app with its job drivers on: jobs run the synthetic objective (local_executor),
+    while simulations and replays are real clips in the API's own pool. A test module that
+    wants the HTTP layer alone overrides `client` with `http_client`."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    with TestClient(create_app(config, repo=repo, executor=local_executor)) as c:
+        yield c

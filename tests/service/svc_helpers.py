@@ -5,6 +5,10 @@ from __future__ import annotations
 import time
 
 TERMINAL = ("converged", "stopped", "failed", "cancelled")
+#: A short real clip for what-if simulations and replays.
+QUIET = {"name": "quiet", "family": "stand",
+         "clip": {"preparation": 0.2, "duration": 0.3, "decay": 0.2},
+         "task": {"type": "quiet_stance"}}
 
 
 def wait_job(client, job_id: str, timeout: float = 30.0) -> dict:

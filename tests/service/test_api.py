@@ -6,17 +6,7 @@ import json
 import time
 
 import pytest
-from fastapi.testclient import TestClient
 from svc_helpers import bend_spec, wait_job
-
-from service.app import create_app
-
-
-@pytest.fixture
-def client(settings, config, repo, local_executor):
-    app = create_app(config, repo=repo, executor=local_executor)
-    with TestClient(app) as c:
-        yield c
 
 
 def _submit(client, spec, **kw):

@@ -4,16 +4,7 @@ CMRT so far, evaluation counts after a generation, the list of PCA bases."""
 from __future__ import annotations
 
 import pytest
-from fastapi.testclient import TestClient
 from svc_helpers import bend_spec, wait_job
-
-from service.app import create_app
-
-
-@pytest.fixture
-def client(settings, config, repo, local_executor):
-    with TestClient(create_app(config, repo=repo, executor=local_executor)) as c:
-        yield c
 
 
 def test_best_is_null_before_the_first_generation(http_client):

@@ -12,21 +12,9 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from svc_helpers import bend_spec, wait_job
+from svc_helpers import QUIET, bend_spec, wait_job
 
 from service.app import create_app
-
-QUIET = {"name": "quiet", "family": "stand",
-         "clip": {"preparation": 0.2, "duration": 0.3, "decay": 0.2},
-         "task": {"type": "quiet_stance"}}
-
-
-@pytest.fixture
-def client(settings, config, repo, local_executor):
-    # jobs are driven with the synthetic objective (local_executor); simulations are real clips
-    app = create_app(config, repo=repo, executor=local_executor)
-    with TestClient(app) as c:
-        yield c
 
 
 def test_clip_without_cmrt(client):

@@ -5,21 +5,9 @@ controller block is a 422 naming the field."""
 from __future__ import annotations
 
 import pytest
-from fastapi.testclient import TestClient
+from svc_helpers import QUIET
 
-from service.app import create_app
 from sim import evaluate, parse_spec
-
-QUIET = {"name": "quiet", "family": "stand",
-         "clip": {"preparation": 0.2, "duration": 0.3, "decay": 0.2},
-         "task": {"type": "quiet_stance"}}
-
-
-@pytest.fixture
-def client(settings, config, repo, local_executor):
-    app = create_app(config, repo=repo, executor=local_executor)
-    with TestClient(app) as c:
-        yield c
 
 
 @pytest.mark.parametrize("controller", [{"type": "pd_world", "root": "person"},
