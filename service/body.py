@@ -12,11 +12,14 @@ from __future__ import annotations
 import json
 import math
 import re
-from typing import Any
+from typing import Any, TypeVar
 
 from fastapi import Request
+from pydantic import BaseModel, ValidationError
 
-from service.errors import ApiError
+from service.errors import ApiError, validation_message
+
+M = TypeVar("M", bound=BaseModel)
 
 #: Deepest nesting of JSON arrays/objects accepted in a request body (a task spec needs ~6).
 MAX_JSON_DEPTH = 64
@@ -104,3 +107,13 @@ async def read_json(request: Request, limit: int, max_depth: int = MAX_JSON_DEPT
         if len(body) > limit:
             raise ApiError(413, f"body: exceeds the limit of {limit} bytes")
     return parse_json(bytes(body), max_depth)
+
+
+async def read_model(request: Request, model: type[M], limit: int) -> M:
+    """The request body parsed (as `read_json`) and validated into `model`; a field breaking
+    a rule is a 422 naming every such field and its rule."""
+    data = await read_json(request, limit)
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        raise ApiError(422, validation_message(err.errors())) from None

@@ -15,6 +15,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from sim.spec import error_location
 from store import NotFound
 
 
@@ -32,7 +33,7 @@ def validation_message(errors: Iterable[Mapping[str, Any]], drop: tuple[str, ...
     """One line naming each failing field and its rule, from pydantic's `errors()` list."""
     parts = []
     for e in errors:
-        loc = ".".join(str(p) for p in e["loc"] if p not in drop)
+        loc = ".".join(str(p) for p in error_location(e["loc"]) if p not in drop)
         parts.append(f"{loc or 'body'}: {e['msg']}")
     return "; ".join(parts)
 

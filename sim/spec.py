@@ -28,6 +28,7 @@ Units: seconds, metres, newtons, kilograms; joint angles in specs are in degrees
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any, Union
 
@@ -285,14 +286,24 @@ class TaskSpec(_Strict):
         return per_knot * self.cmrt.knots
 
 
+def error_location(loc: Sequence[str | int]) -> list[str | int]:
+    """A pydantic error path as the spec's author wrote it: pydantic puts the chosen member's
+    tag of a discriminated union in the path (`task.push.force`), which names no field of the
+    file; the tag after a `task` or `controller` key is dropped, at any depth (a spec nested
+    in a request body included)."""
+    out: list[str | int] = []
+    for part in loc:
+        if out and ((out[-1] == "task" and part in TASK_TYPES)
+                    or (out[-1] == "controller" and part in CONTROLLER_TYPES)):
+            continue
+        out.append(part)
+    return out
+
+
 def _format_error(err: ValidationError) -> str:
     lines = []
     for e in err.errors():
-        loc = list(e["loc"])
-        if len(loc) > 1 and loc[0] == "task" and loc[1] in TASK_TYPES:
-            del loc[1]  # pydantic puts the union member's tag in the path
-        if len(loc) > 1 and loc[0] == "controller" and loc[1] in CONTROLLER_TYPES:
-            del loc[1]
+        loc = error_location(e["loc"])
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "controller_type":
             loc = [*loc, "type"]

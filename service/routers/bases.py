@@ -7,13 +7,12 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
-from pydantic import ValidationError
 
 from optim.errors import BasisError
 from service import schemas
-from service.body import read_json
+from service.body import read_model
 from service.deps import MAX_OFFSET, RepoDep, SettingsDep
-from service.errors import ApiError, validation_message
+from service.errors import ApiError
 from service.openapi import error_responses, json_body
 from service.views import basis_out
 from worker.library import build_library_basis
@@ -26,11 +25,7 @@ router = APIRouter(prefix="/bases", tags=["library"])
              responses=error_responses(400, 413, 415, 422))
 async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -> JSONResponse:
     """Body `{"family": "bend", "k": 3}`: PCA of the family's library CMRTs."""
-    data = await read_json(request, settings.max_body_bytes)
-    try:
-        req = schemas.BasisRequest.model_validate(data)
-    except ValidationError as err:
-        raise ApiError(422, validation_message(err.errors())) from None
+    req = await read_model(request, schemas.BasisRequest, settings.max_body_bytes)
     try:
         basis_id = build_library_basis(repo, req.family, req.k)
     except BasisError as err:

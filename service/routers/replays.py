@@ -15,14 +15,13 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse
-from pydantic import ValidationError
 
 from optim.errors import ParamsError
 from optim.spline import check_params
 from service import schemas
-from service.body import read_json
+from service.body import read_model
 from service.deps import ServicesDep, url_for
-from service.errors import ApiError, validation_message
+from service.errors import ApiError
 from service.openapi import error_responses, json_body
 from service.replay_page import render_replay, replay_csp
 from service.routers.simulations import RETRY_AFTER_S, _params
@@ -85,11 +84,7 @@ async def _job_doc(job_id: str, request: Request, svc: Any, compare: bool) -> di
 
 
 async def _simulation_doc(request: Request, svc: Any) -> dict[str, Any]:
-    data = await read_json(request, svc.settings.max_body_bytes)
-    try:
-        req = schemas.ReplayRequest.model_validate(data)
-    except ValidationError as err:
-        raise ApiError(422, validation_message(err.errors())) from None
+    req = await read_model(request, schemas.ReplayRequest, svc.settings.max_body_bytes)
     params, about = _params(svc, request, req)
     return await _document(svc, req.spec.model_dump(mode="json"), params, about, req.compare,
                            422)

@@ -8,14 +8,13 @@ from typing import Any
 
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
-from pydantic import ValidationError
 
 from optim.errors import ParamsError
 from optim.spline import check_params
 from service import schemas
-from service.body import read_json
+from service.body import read_model
 from service.deps import ServicesDep, url_for
-from service.errors import ApiError, validation_message
+from service.errors import ApiError
 from service.openapi import error_responses, json_body
 from service.simulations import SimulationBusyError
 from store import NotFound
@@ -71,11 +70,7 @@ async def simulate(request: Request, svc: ServicesDep) -> JSONResponse:
     "frames": false}`. Runs the clip in the API's simulation pool and answers with the
     objective, whether and which way the character fell, the task's success and the traces;
     `status: "failed"` (with `error`) when the simulation diverges or its process dies."""
-    data = await read_json(request, svc.settings.max_body_bytes)
-    try:
-        req = schemas.SimulationRequest.model_validate(data)
-    except ValidationError as err:
-        raise ApiError(422, validation_message(err.errors())) from None
+    req = await read_model(request, schemas.SimulationRequest, svc.settings.max_body_bytes)
     params, about = _params(svc, request, req)
     try:
         out = await svc.simulations.run(req.spec.model_dump(mode="json"), params,

@@ -21,16 +21,25 @@ def test_pd_clip_is_the_direct_rollout(client, controller):
     assert out["objective"] == evaluate(parse_spec(spec)).objective
 
 
-# The API's messages keep pydantic's union tag in the path, as for `task`
-# (spec.task.push.force); sim.parse_spec (the CLI) drops it.
+# The API names the field as the spec's author wrote it, as sim.parse_spec (the CLI) does:
+# pydantic's union tag (spec.controller.pd_world.k2) is not in the path.
 @pytest.mark.parametrize(("controller", "needle"), [
     ({"type": "pd"}, "spec.controller: must be a mapping whose `type` (default momentum) is "
                      "one of momentum, pd_parent, pd_world"),
-    ({"type": "pd_world", "k2": -1.0}, "spec.controller.pd_world.k2: Input should be greater"),
+    ({"type": "pd_world", "k2": -1.0}, "spec.controller.k2: Input should be greater"),
     ({"type": "momentum", "stepping": True, "response_delay": -1},
-     "spec.controller.momentum.response_delay: Input should be greater than or equal to 0"),
+     "spec.controller.response_delay: Input should be greater than or equal to 0"),
 ])
 def test_bad_controller_block_is_422(client, controller, needle):
     r = client.post("/simulations", json={"spec": {**QUIET, "controller": controller}})
     assert r.status_code == 422, r.text
     assert needle in r.json()["detail"], r.json()["detail"]
+
+
+def test_task_field_error_names_the_field_without_its_union_tag(client):
+    spec = {**QUIET, "task": {"type": "push", "force": 1e9}}
+    r = client.post("/simulations", json={"spec": spec})
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert detail.startswith("spec.task.force: "), detail
+
