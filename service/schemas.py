@@ -290,3 +290,22 @@ class ReplayOut(BaseModel):
 
 
 REPLAY_EXAMPLE: dict[str, Any] = {"spec": JOB_EXAMPLE, "cmrt": None, "compare": True}
+
+
+# ---- signed links (service.routers.links, service.links) --------------------------------------
+class LinkRequest(BaseModel):
+    """A replay page to open without the token header."""
+
+    model_config = ConfigDict(extra="forbid")
+    path: str = Field(max_length=128, description="`/jobs/{id}/replay` or `/cmrts/{id}/replay`")
+
+
+class LinkOut(BaseModel):
+    """A signed link to `path`; valid until `expires` (unix seconds; null: no token is set,
+    the plain path opens as it is)."""
+
+    url: str
+    expires: int | None
+
+
+LINK_EXAMPLE: dict[str, Any] = {"path": "/jobs/0123abcd/replay"}

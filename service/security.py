@@ -8,7 +8,8 @@
   read-only data endpoints too (401 otherwise, compared in constant time). Always open: `/health`
   (state only, for orchestrators), the page shells `/dashboard` and `/docs`, their `/static`
   assets and `/openapi.json`; they hold no data, and the dashboard sends the token itself
-  (`/dashboard/...`: the job and library pages, shells too).
+  (`/dashboard/...`: the job and library pages, shells too). A replay page also opens with a
+  signed, short-lived link instead of the header (`service.links`, minted by `POST /links`).
 - Cross-site requests: a state-changing request a browser marks `Sec-Fetch-Site: cross-site` is
   refused (403); bodies must be `application/json` (415, `service.body`), which a cross-origin
   page cannot send without a CORS preflight, and the API grants no CORS.
@@ -29,6 +30,7 @@ from typing import Any
 from starlette.routing import Match, Mount
 
 from cmrt.settings import Settings
+from service import links
 
 Scope = dict[str, Any]
 Receive = Callable[[], Awaitable[dict[str, Any]]]
@@ -130,7 +132,9 @@ class HttpEdge:
             await _respond(send_with_headers, 403,
                            "origin: cross-site requests that change state are refused")
             return
-        if needs_token(self.settings, method, path) and not self._token_ok(scope):
+        if (needs_token(self.settings, method, path) and not self._token_ok(scope)
+                and not (method in ("GET", "HEAD") and links.verify(
+                    self.token.decode(), path, scope.get("query_string", b"")))):
             await _respond(send_with_headers, 401,
                            "authorization: a valid 'Bearer <CMRT_API_TOKEN>' header is required",
                            {"www-authenticate": 'Bearer realm="cmrt"'})

@@ -34,6 +34,11 @@ log = logging.getLogger("cmrt.service.replays")
 
 Compare = Annotated[bool, Query(description="also the clip without anticipation (flat "
                                             "spline), on the same timeline")]
+# Documented for the HTML pages, checked by the HTTP edge (service.links), unused by the route.
+Expires = Annotated[int | None, Query(ge=0, le=10**15, description="a signed link's expiry "
+                                      "(unix seconds), from POST /links")]
+Signature = Annotated[str | None, Query(max_length=64, pattern="^[0-9a-f]*$",
+                                        description="a signed link's HMAC, from POST /links")]
 _HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}},
                "description": "The self-contained replay page (player, data and uPlot inline)"}}
 
@@ -97,7 +102,8 @@ def _html(doc: dict[str, Any]) -> HTMLResponse:
 @router.get("/cmrts/{cmrt_id}/replay", response_class=HTMLResponse, responses={
     **_HTML, **error_responses(404, 409, 503)}, summary="Replay a library CMRT (HTML player)")
 async def cmrt_replay(cmrt_id: str, request: Request, svc: ServicesDep,
-                      compare: Compare = True) -> HTMLResponse:
+                      compare: Compare = True, expires: Expires = None,
+                      signature: Signature = None) -> HTMLResponse:
     """The CMRT on its own task (its stored spec), beside the clip without anticipation."""
     return _html(await _cmrt_doc(cmrt_id, request, svc, compare))
 
@@ -113,7 +119,8 @@ async def cmrt_replay_json(cmrt_id: str, request: Request, svc: ServicesDep,
     **_HTML, **error_responses(404, 409, 503)},
     summary="Replay a job's best candidate so far (HTML player)")
 async def job_replay(job_id: str, request: Request, svc: ServicesDep,
-                     compare: Compare = True) -> HTMLResponse:
+                     compare: Compare = True, expires: Expires = None,
+                     signature: Signature = None) -> HTMLResponse:
     """The job's best candidate so far on the job's spec, beside the clip without
     anticipation; 409 while the job has no candidate yet."""
     return _html(await _job_doc(job_id, request, svc, compare))

@@ -35,8 +35,9 @@
     document.title = "CMRT job " + j.name;
     clear(document.getElementById("badge")).appendChild(CMRT.statusBadge(j.status));
     const links = clear(document.getElementById("links"));
-    links.appendChild(el("a", {href: base + "/replay", id: "replay-link"},
-                         "Replay the best candidate (with and without anticipation)"));
+    links.appendChild(CMRT.replayLink(base + "/replay",
+                                      "Replay the best candidate (with and without anticipation)",
+                                      {id: "replay-link"}));
     links.appendChild(el("a", {href: base}, "job JSON"));
     if (j.cmrt_id) {
       links.appendChild(el("a", {href: "/dashboard/library?" + new URLSearchParams(

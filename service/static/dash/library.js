@@ -40,8 +40,8 @@
         el("td", {}, r.winner), el("td", {}, r.fell ? "fell" : ""),
         el("td", {}, r.job_id ? el("a", {href: CMRT.jobPage(r.job_id)}, "job") : ""),
         el("td", {}, el("a", {href: "/cmrts/" + encodeURIComponent(r.id)}, r.id.slice(0, 8))),
-        el("td", {}, el("a", {href: "/cmrts/" + encodeURIComponent(r.id) + "/replay"},
-                        "replay"))));
+        el("td", {}, CMRT.replayLink("/cmrts/" + encodeURIComponent(r.id) + "/replay",
+                                     "replay"))));
     }
   }
 

@@ -1,0 +1,96 @@
+"""Signed replay links (service.links, POST /links): with a token set and reads closed, a
+replay page opens with a valid, unexpired signature for exactly its path, and with nothing
+else; the JSON endpoints keep needing the header."""
+
+from __future__ import annotations
+
+from urllib.parse import parse_qs, urlsplit
+
+import pytest
+from fastapi.testclient import TestClient
+
+from cmrt.settings import Settings
+from service import links
+from service.app import create_app
+
+TOKEN = "s3cret-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+@pytest.fixture
+def closed(config, repo, local_executor):
+    s = config.model_copy(update={"api_token": Settings(api_token=TOKEN).api_token})
+    with TestClient(create_app(s, repo=repo, executor=local_executor, run_drivers=False)) as c:
+        yield c
+
+
+@pytest.fixture
+def open_(config, repo, local_executor):
+    with TestClient(create_app(config, repo=repo, executor=local_executor,
+                               run_drivers=False)) as c:
+        yield c
+
+
+def _mint(client, path: str) -> str:
+    r = client.post("/links", json={"path": path}, headers=AUTH)
+    assert r.status_code == 201, r.text
+    return r.json()["url"]
+
+
+def test_a_signed_link_opens_its_replay_page_only(closed):
+    path = "/jobs/nosuchjob/replay"
+    assert closed.get(path).status_code == 401
+    url = _mint(closed, path)
+    q = parse_qs(urlsplit(url).query)
+    assert urlsplit(url).path == path and set(q) == {"expires", "signature"}
+    # Past the edge: the route answers (no such job), not the 401 of the edge.
+    r = closed.get(url)
+    assert r.status_code == 404, r.text
+    assert closed.get(url + "&compare=false").status_code == 404
+    # The same signature on another path, on the JSON document, or on a write: refused.
+    query = urlsplit(url).query
+    for other in ("/jobs/otherjob/replay", "/jobs/nosuchjob/replay.json", "/jobs"):
+        assert closed.get(f"{other}?{query}").status_code == 401, other
+    assert closed.post(f"/jobs/nosuchjob/cancel?{query}").status_code == 401
+
+
+def test_expired_or_tampered_signatures_are_refused(closed):
+    path = "/cmrts/abc/replay"
+    url, expires = links.sign(TOKEN, path, now=1_000.0)  # expired long ago
+    assert closed.get(url).status_code == 401
+    fresh = _mint(closed, path)
+    sig = parse_qs(urlsplit(fresh).query)["signature"][0]
+    flipped = ("0" if sig[0] != "0" else "1") + sig[1:]
+    assert closed.get(fresh.replace(sig, flipped)).status_code == 401
+    assert closed.get(fresh.replace("expires=", "expires=9")).status_code == 401
+    wrong_key, _ = links.sign("another-token", path)
+    assert closed.get(wrong_key).status_code == 401
+    assert closed.get(fresh + "&signature=" + sig).status_code == 401  # two signatures
+
+
+def test_verify_checks_path_expiry_and_key():
+    url, expires = links.sign(TOKEN, "/jobs/j1/replay", now=100.0)
+    query = urlsplit(url).query
+    assert expires == 100 + links.LINK_SECONDS
+    assert links.verify(TOKEN, "/jobs/j1/replay", query, now=expires)
+    assert not links.verify(TOKEN, "/jobs/j1/replay", query, now=expires + 1)
+    assert not links.verify(TOKEN, "/jobs/j2/replay", query, now=100.0)
+    assert not links.verify("", "/jobs/j1/replay", query, now=100.0)
+    assert not links.verify(TOKEN, "/jobs/j1/replay", "", now=100.0)
+
+
+def test_minting_needs_the_token_and_a_replay_path(closed):
+    assert closed.post("/links", json={"path": "/jobs/x/replay"}).status_code == 401
+    for bad in ("/jobs", "/jobs/x/replay.json", "/jobs/x/replay/../cancel",
+                "https://evil.example/jobs/x/replay", "/jobs/" + "x" * 65 + "/replay"):
+        r = closed.post("/links", json={"path": bad}, headers=AUTH)
+        assert r.status_code == 422, (bad, r.text)
+        assert r.json()["detail"].startswith("path: "), r.text
+    r = closed.post("/links", json={"path": "/jobs/x/replay", "ttl": 5}, headers=AUTH)
+    assert r.status_code == 422 and r.json()["detail"].startswith("ttl: "), r.text
+
+
+def test_without_a_token_the_link_is_the_plain_path(open_):
+    r = open_.post("/links", json={"path": "/jobs/x/replay"})
+    assert r.status_code == 201, r.text
+    assert r.json() == {"url": "/jobs/x/replay", "expires": None}
