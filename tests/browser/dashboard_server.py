@@ -49,13 +49,14 @@ def spec(name: str, *, family: str = "bend", duration: float = 0.4,
 
 
 class Server:
-    def __init__(self, data_dir: Path, workers: int = 2) -> None:
+    def __init__(self, data_dir: Path, workers: int = 2,
+                 env_extra: dict[str, str] | None = None) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = data_dir / "serve.log"
         env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
         env.update(CMRT_DATA_DIR=str(data_dir), CMRT_WORKERS=str(workers),
-                   CMRT_SCAN_INTERVAL="0.5")
+                   CMRT_SCAN_INTERVAL="0.5", **(env_extra or {}))
         self.proc = subprocess.Popen([str(CMRT), "serve", "--port", str(self.port)], env=env,
                                      cwd=data_dir, stdout=self.log.open("wb"),
                                      stderr=subprocess.STDOUT, start_new_session=True)
