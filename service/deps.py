@@ -84,7 +84,7 @@ def no_nul(request: Request) -> None:
 
 
 #: Query keys of /cmrts and /cmrts/interpolate that are not task parameters.
-RESERVED_QUERY_KEYS = {"family", "tolerance", "limit", "offset", "extrapolate", "along"}
+RESERVED_QUERY_KEYS = {"family", "tolerance", "limit", "offset", "extrapolate", "along", "curves"}
 #: Most task parameters accepted in one library query.
 MAX_QUERY_PARAMS = 16
 #: Longest name of a task parameter in a library query.

@@ -159,6 +159,8 @@ class CmrtSummary(BaseModel):
     fell: bool
     job_id: str | None
     created_at: datetime
+    curve: dict[str, Any] | None = Field(
+        None, description="the sampled curve as GET /cmrts/{id} gives it; only with curves=true")
 
 
 class CmrtPage(BaseModel):

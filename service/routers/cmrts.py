@@ -29,9 +29,11 @@ def find_cmrts(
         description="nearest within +-tolerance; without it: exact match")] = None,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
+    curves: Annotated[bool, Query(description="include each CMRT's sampled curve")] = False,
 ) -> dict[str, Any]:
     """`GET /cmrts?family=bend&duration=0.4[&tolerance=0.05]`: any other query key is a
-    task parameter (e.g. duration, force). Nearest first when a tolerance is given."""
+    task parameter (e.g. duration, force). Nearest first when a tolerance is given. With
+    `curves=true` every item carries its `curve` (one request draws a family)."""
     if params and family is None:
         raise ApiError(422, "family: required when querying by task parameters")
     if not params:
@@ -42,7 +44,13 @@ def find_cmrts(
         except ValueError as err:
             raise ApiError(422, str(err)) from None
         total, items = len(found), found[offset:offset + limit]
-    return {"items": [cmrt_out(r, request) for r in items], "total": total,
+    out = []
+    for r in items:
+        d = cmrt_out(r, request)
+        if curves:
+            d["curve"] = r.curve
+        out.append(d)
+    return {"items": out, "total": total,
             "limit": limit, "offset": offset}
 
 

@@ -36,6 +36,14 @@ def test_best_evaluations_after_and_bases(client):
     if client.get(f"/cmrts/{job['cmrt_id']}").json()["winner"] == "search":
         assert client.get(f"/cmrts/{job['cmrt_id']}").json()["curve"] == best["curve"]
 
+    # One request draws the family: each item's curve is the one GET /cmrts/{id} gives.
+    listed = client.get("/cmrts", params={"family": "bend", "curves": "true"}).json()["items"]
+    assert sorted(r["id"] for r in listed) == sorted(j["cmrt_id"] for j in jobs)
+    for r in listed:
+        assert r["curve"] == client.get(f"/cmrts/{r['id']}").json()["curve"]
+    assert all(r["curve"] is None
+               for r in client.get("/cmrts", params={"family": "bend"}).json()["items"])
+
     every = client.get(f"/jobs/{ids[0]}/evaluations").json()["generations"]
     assert [g["generation"] for g in every] == [-1, 0, 1, 2]
     assert [g["population"] for g in every] == [2, 4, 4, 4]  # final pair, then popsize 4

@@ -8,7 +8,7 @@
   const params = new URLSearchParams(location.search);
   CMRT.header("library");
   document.getElementById("source").textContent =
-    "GET /cmrts?family=F, /cmrts/{id}, /cmrts/interpolate?family=F&KEY=V, /bases?family=F";
+    "GET /cmrts, /cmrts?family=F&curves=true, /cmrts/interpolate?family=F&KEY=V, /bases?family=F";
   let all = [], members = [], details = new Map(), keys = [], interpTimer = null;
 
   async function loadAll() {
@@ -196,9 +196,13 @@
     history.replaceState(null, "", api("/dashboard/library",
                                        {family, cmrt: params.get("cmrt") || ""}));
     table();
-    const need = members.slice(0, MAX_OVERLAY).filter(r => !details.has(r.id));
-    const got = await Promise.all(need.map(r => getJson("/cmrts/" + encodeURIComponent(r.id))));
-    for (const d of got) details.set(d.id, d);
+    if (members.some(r => !details.has(r.id))) {  // the family's curves, a page per request
+      for (let offset = 0; ; offset += PAGE) {
+        const page = await getJson(api("/cmrts", {family, curves: true, limit: PAGE, offset}));
+        for (const d of page.items) details.set(d.id, d);
+        if (offset + PAGE >= page.total || !page.items.length) break;
+      }
+    }
     overlay();
     interpForm();
     await preview();
