@@ -135,7 +135,9 @@ def cmd_optimize(args: argparse.Namespace) -> int:
 
     def progress(st: Any) -> None:
         # A rich bar on a terminal, else one plain line per generation (cli/progress.py).
-        show(Progress(job_id="", status="running", generation=st.iteration,
+        # `gen` is the generation's index from 0, as the service and `cmrt watch` number it
+        # (st.iteration counts generations from 1).
+        show(Progress(job_id="", status="running", generation=st.iteration - 1,
                       evaluations=st.evaluations, max_evaluations=spec.optimize.max_evaluations,
                       best=st.best_so_far, sigma=st.sigma, elapsed=time.perf_counter() - t0))
 

@@ -187,7 +187,8 @@ class Progress:
 
 def format_line(generation: int | None, evaluations: int, best: float | None,
                 sigma: float | None, elapsed: float) -> str:
-    """`gen    3  evals    24  best    2.8268  sigma  0.1454     17.1 s`."""
+    """`gen    2  evals    24  best    2.8268  sigma  0.1454     17.1 s` (generation index
+    from 0: the third generation of 8 candidates)."""
     gen = -1 if generation is None else generation
     best = float("nan") if best is None else best
     sigma = float("nan") if sigma is None else sigma

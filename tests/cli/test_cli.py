@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import signal
@@ -34,9 +36,17 @@ def optimised(tmp_path_factory):
     spec = d / "bend.yaml"
     spec.write_text(yaml.safe_dump(BEND))
     out = d / "bend.json"
-    assert main(["optimize", str(spec), "--workers", "1", "--seed", "2", "--out", str(out),
-                 "--json"]) == 0
-    return d, spec, out, json.loads(out.read_text())
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["optimize", str(spec), "--workers", "1", "--seed", "2", "--out", str(out),
+                     "--json"]) == 0
+    return d, spec, out, json.loads(out.read_text()), err.getvalue()
+
+
+def test_progress_numbers_generations_from_zero_as_the_service(optimised):
+    *_, result, stderr = optimised
+    gens = [int(ln.split()[1]) for ln in stderr.splitlines() if ln.startswith("gen ")]
+    assert gens == list(range(result["iterations"])), stderr
 
 
 def _simulate(capsys, *argv: str) -> dict:
@@ -46,7 +56,7 @@ def _simulate(capsys, *argv: str) -> dict:
 
 
 def test_replay_gives_the_optimised_objective(optimised, capsys):
-    d, spec, out, res = optimised
+    d, spec, out, res, _err = optimised
     trace = d / "trace.csv"
     got = _simulate(capsys, str(spec), "--cmrt", str(out), "--trace", str(trace))
     assert got["cmrt"] == str(out)
@@ -60,7 +70,7 @@ def test_replay_gives_the_optimised_objective(optimised, capsys):
 def test_sequence_superposes_a_stored_cmrt(optimised, capsys):
     """One motion naming the result, at the result's own task time: the superposed CMRT is
     that result's CMRT, so the sequence replays the optimised objective."""
-    d, _spec, out, res = optimised
+    d, _spec, out, res, _err = optimised
     seq = {
         "name": "cli_seq",
         "clip": BEND["clip"],
@@ -86,7 +96,7 @@ def test_bad_spec_names_the_field(tmp_path, capsys):
 
 
 def test_missing_result_file(optimised, capsys):
-    _d, spec, _out, _res = optimised
+    _d, spec, _out, _res, _err = optimised
     assert main(["simulate", str(spec), "--cmrt", "/nonexistent/r.json"]) == 2
     err = capsys.readouterr().err
     assert "/nonexistent/r.json" in err and "cannot read" in err
