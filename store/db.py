@@ -3,7 +3,8 @@
 - `make_engine(url)`: an Engine ready for several processes writing at once. SQLite gets WAL,
   foreign keys, a busy timeout, and `BEGIN IMMEDIATE` for transactions (so two writers queue on
   the busy timeout instead of failing on a lock upgrade); the SQLite file's folder is created on
-  demand. After `os.fork()` the child drops the parent's pooled connections.
+  demand. PostgreSQL gets TCP keepalives and a connect timeout (`PG_*`). After `os.fork()` the
+  child drops the parent's pooled connections.
 - `init_db(url_or_engine)`: create or upgrade the schema to the latest Alembic revision.
 - `session_scope(engine)`: a Session committing on success, rolling back on error.
 
@@ -26,6 +27,14 @@ from sqlalchemy.pool import StaticPool
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent / "migrations"
 SQLITE_BUSY_TIMEOUT_MS = 30_000
+#: libpq TCP keepalives on every PostgreSQL connection: a server or a network path that dies
+#: silently (no FIN/RST) is noticed after IDLE + INTERVAL x COUNT seconds (60 s) instead of
+#: the kernel's default two hours, so a worker's store call fails and is retried rather than
+#: hanging on a dead socket; CONNECT_TIMEOUT bounds a connection attempt to an unreachable host.
+PG_KEEPALIVE_IDLE_S = 30
+PG_KEEPALIVE_INTERVAL_S = 10
+PG_KEEPALIVE_COUNT = 3
+PG_CONNECT_TIMEOUT_S = 10
 
 #: Execution option: run this engine's SQLite transactions as `BEGIN` (deferred, read-only use)
 #: instead of `BEGIN IMMEDIATE`.
@@ -47,7 +56,12 @@ def make_engine(url: str | URL, **kwargs: Any) -> Engine:
         engine = _sqlite_engine(u, **kwargs)
     elif backend == "postgresql":
         kwargs.setdefault("pool_pre_ping", True)
-        engine = create_engine(u, **kwargs)
+        connect_args = {"keepalives": 1, "keepalives_idle": PG_KEEPALIVE_IDLE_S,
+                        "keepalives_interval": PG_KEEPALIVE_INTERVAL_S,
+                        "keepalives_count": PG_KEEPALIVE_COUNT,
+                        "connect_timeout": PG_CONNECT_TIMEOUT_S,
+                        **kwargs.pop("connect_args", {})}
+        engine = create_engine(u, connect_args=connect_args, **kwargs)
     else:
         raise ValueError(f"unsupported database {backend!r}: use sqlite or postgresql")
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 from collections.abc import Callable
 
 import pytest
@@ -80,3 +81,29 @@ def test_sqlite_engine_pragmas(tmp_path) -> None:
 def test_unsupported_database_is_refused() -> None:
     with pytest.raises(ValueError, match="unsupported database"):
         make_engine("mysql://x@localhost/db")
+
+
+
+@pytest.mark.postgres
+def test_postgres_connections_carry_tcp_keepalives(pg_server):
+    """A silently dead server or path is noticed in about a minute, not the kernel's 2 h: the
+    socket of a pooled connection has keepalives on with the store's idle, interval, count."""
+    import socket
+
+    from store.db import PG_KEEPALIVE_COUNT, PG_KEEPALIVE_IDLE_S, PG_KEEPALIVE_INTERVAL_S
+    if not pg_server.available():
+        pytest.skip(f"PostgreSQL unreachable ({pg_server.error})")
+    engine = make_engine(pg_server.new_url())
+    try:
+        with engine.connect() as c:
+            fd = c.connection.dbapi_connection.pgconn.socket
+            sock = socket.socket(fileno=os.dup(fd))
+            try:
+                got = [sock.getsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE) != 0,
+                       *(sock.getsockopt(socket.IPPROTO_TCP, o) for o in (
+                           socket.TCP_KEEPIDLE, socket.TCP_KEEPINTVL, socket.TCP_KEEPCNT))]
+            finally:
+                sock.close()
+    finally:
+        engine.dispose()
+    assert got == [True, PG_KEEPALIVE_IDLE_S, PG_KEEPALIVE_INTERVAL_S, PG_KEEPALIVE_COUNT]
