@@ -374,7 +374,10 @@ class CeleryExecutor(GenerationExecutor):
         rows = repo.evaluations(job_id, generation)
         unsent = deque(r.index for r in rows if r.status == PENDING)
         schedule = PollSchedule(time.monotonic(), self.config.poll_interval)
-        window, slots, cap = self.config.dispatch_window, self.config.workers, self.batch_cap
+        window, cap = self.config.dispatch_window, self.batch_cap
+        # the evaluation processes are not known here: the window is sized at about twice
+        # their number (docs/service.md), so batches never leave one of them without a task
+        slots = max(1, window // 2)
         sent_at: dict[int, float] = {}  # sent, not seen resolved yet
 
         def top_up() -> None:
