@@ -43,6 +43,10 @@ from worker.evaluation import (
 from worker.fairpool import FairPool
 from worker.notify import FALLBACK_POLL_S, NoticeWaiter
 
+#: While the workers' notices announce every result, the driver still reads the store this
+#: often, s: it finds a result whose notice was lost within this time, and an overdue candidate.
+STORE_READ_S = 2.0
+
 log = logging.getLogger(__name__)
 
 
@@ -344,13 +348,15 @@ class CeleryExecutor(GenerationExecutor):
         with self._lock:
             ids = self._task_ids.get((job_id, generation), {})
             task_ids = sorted({ids[i] for i in indices if i in ids})
+            # every candidate those tasks carry (a batch's finished ones are resolved already)
+            dropped = sum(1 for t in ids.values() if t in task_ids)
         if not task_ids:
             return
         try:
             self.app.control.revoke(task_ids, terminate=True, signal="SIGKILL")
-            self.revoked += len(task_ids)
-            log.info("job %s: revoked %d tasks of generation %d", job_id, len(task_ids),
-                     generation)
+            self.revoked += dropped
+            log.info("job %s: revoked %d evaluations (%d tasks) of generation %d", job_id,
+                     dropped, len(task_ids), generation)
         except self._errors as err:  # the claims skip them anyway (the job is terminal)
             log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
 
@@ -369,7 +375,10 @@ class CeleryExecutor(GenerationExecutor):
         Waiting: a notice names a resolved candidate (the worker sends it after the store has
         the result), so it frees its place in the window at once; the store is read (one count
         query) when the notices say that every candidate is resolved, and at least every
-        `FALLBACK_POLL_S` s, which also finds a result whose notice was lost.
+        `STORE_READ_S` s. A read that finds a result no notice announced (notices lost, or not
+        sent) turns the rest of the generation to reading the store after every wait, each
+        wait ending after `PollSchedule`'s delay or at the next notice. The driver's checkpoint
+        (cancel flag, lease, shutdown) runs at least every `FALLBACK_POLL_S` s.
         """
         rows = repo.evaluations(job_id, generation)
         unsent = deque(r.index for r in rows if r.status == PENDING)
@@ -395,9 +404,10 @@ class CeleryExecutor(GenerationExecutor):
             resolved = initially = population - len(unsent) - len(sent_at)
             overdue_after = self.config.visibility_timeout + self.config.eval_time_limit
             read_store, last_read = True, 0.0
+            trusted = True  # until the store holds a result no notice announced
             while True:
                 now = time.monotonic()
-                if read_store or now - last_read >= FALLBACK_POLL_S:
+                if read_store or now - last_read >= (STORE_READ_S if trusted else 0.0):
                     last_read = now
                     counts = repo.evaluation_counts(job_id, generation)
                     if counts.resolved >= population:
@@ -406,6 +416,7 @@ class CeleryExecutor(GenerationExecutor):
                         return repo.evaluations(job_id, generation)
                     pending: set[int] | None = None
                     if counts.resolved > resolved:  # results the notices did not announce
+                        trusted = False  # notices lost or not sent: read after every wait
                         resolved = counts.resolved
                         self._progress()
                         pending = {r.index for r in repo.evaluations(job_id, generation)
@@ -436,10 +447,11 @@ class CeleryExecutor(GenerationExecutor):
                         for i in [i for i in sent_at if i not in pending]:
                             del sent_at[i]
                 check()
-                notes = self._waiter.wait(job_id, FALLBACK_POLL_S)
+                wait = schedule.delay(time.monotonic(), resolved - initially,
+                                      population - resolved)
+                notes = self._waiter.wait(job_id, FALLBACK_POLL_S if trusted else wait)
                 if notes is None:  # no notices here: poll the store
-                    time.sleep(schedule.delay(time.monotonic(), resolved - initially,
-                                              population - resolved))
+                    time.sleep(wait)
                     read_store = True
                     continue
                 done = [i for g, i in notes if g == generation and i in sent_at]
@@ -449,7 +461,7 @@ class CeleryExecutor(GenerationExecutor):
                     resolved += len(done)
                     self._progress()
                     top_up()
-                read_store = not notes or (not sent_at and not unsent)
+                read_store = not trusted or (not sent_at and not unsent)
         except DriverInterruptError as why:
             if str(why) == "cancel":
                 self._revoke(job_id, generation, list(sent_at))
