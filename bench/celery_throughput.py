@@ -1,14 +1,15 @@
 """Evaluations per second: Celery workers versus a bare process pool, on the same short clips.
 
-    .venv/bin/python bench/celery_throughput.py [--candidates 32] [--workers 1 2] [--clip 0.8]
-        [--repeat 3] [--store N] [--json]
+    .venv/bin/python bench/celery_throughput.py [--candidates 32] [--workers 1 2]
+        [--clip 0.8 [2.6 ...]] [--repeat 3] [--store N] [--json]
 
 For each worker count N, in the same run and on the same candidates:
   * bare pool: `optim.executors.PoolExecutor(N).map(SimObjective(spec), batch)`;
   * Celery:    `python -m worker --concurrency N` (the compose worker's command) against a
                private redis-server and a fresh PostgreSQL database, driven by the job driver's
-               own `CeleryExecutor` (pending evaluations in the store, one task per candidate,
-               results upserted, completion by polling the store's counts).
+               own `CeleryExecutor` (pending evaluations in the store, tasks of up to
+               CMRT_TASK_BATCH candidates, results upserted, the driver woken by the workers'
+               result notices).
 Both sides are warmed up first (processes started, simulators built), then measured `--repeat`
 times, alternating, so that both see the same machine load. Prints median evaluations per
 second, the ratio Celery / bare pool (target: >= 0.90) and Celery's overhead per candidate in
@@ -21,8 +22,11 @@ CPU besides the simulations (Celery: the store calls and Celery's task wrapper),
 parent process, redis-server, the scratch database's PostgreSQL backends, and this process (the
 driver; for the bare pool, the pool's parent). On a machine with as many cores as workers that
 CPU is taken from the simulations. The driver
-waits with its production settings (CMRT_POLL_INTERVAL, default 0.2 s, shorter near a
-generation's end).
+runs with its production settings (CMRT_TASK_BATCH, CMRT_DISPATCH_WINDOW from the environment).
+From that account it prints the ratio the CPU alone predicts for an otherwise idle machine with
+as many cores as workers, every process CPU-bound and no idle gaps:
+(sim + pool overhead) / (sim + Celery overhead), sim being the simulations' own CPU per
+candidate. It prints the load average before and after each clip length.
 `--store N` also times the worker's store path alone: `worker.evaluation.run_candidate` with a
 null objective on a worker's repository, N times in this process against the same PostgreSQL
 database (median and mean wall ms, mean CPU ms).
@@ -144,6 +148,7 @@ def bare_pool(spec, warm, workers: int):
             sim = sum(o.cpu_seconds for o in outs)
             cpu["children"] -= sim  # what the pool processes spent besides simulating
             cpu["wall"] = dt
+            cpu["sim"] = sim
             return len(batch) / dt, sim / (workers * dt), cpu
 
         yield measure
@@ -244,6 +249,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
             sim = sum(r.cpu_seconds or 0.0 for r in rows)
             cpu["children"] -= sim
             cpu["wall"] = dt
+            cpu["sim"] = sim
             busy = sim / (workers * dt)
             return len(batch) / dt, sum(r.attempts - 1 for r in rows), busy, cpu
 
@@ -296,76 +302,110 @@ def _per_candidate(total: dict[str, float], candidates: int) -> dict[str, float]
     return {k: 1e3 * v / candidates for k, v in total.items()}
 
 
+def _overhead(parts: dict[str, float]) -> float:
+    """Not-simulation CPU ms per candidate: every account but the wall time and the simulation."""
+    return sum(v for k, v in parts.items() if k not in ("wall", "sim"))
+
+
+def measure_clip(args: argparse.Namespace, clip: float, scratch: _Scratch) -> list[dict]:
+    """Every worker count's alternating measurements of one clip length."""
+    from sim.spec import parse_spec
+
+    spec = parse_spec(_spec(clip))
+    batch = _batch(spec, args.candidates, 1)
+    rows = []
+    for n in args.workers:
+        warm = _batch(spec, 2 * n, 100 + n)
+        pool_rates, cel_rates, repeated, pool_busy, cel_busy = [], [], 0, [], []
+        pool_cpu: dict[str, float] = {}
+        cel_cpu: dict[str, float] = {}
+        load0 = os.getloadavg()[0]
+        with bare_pool(spec, warm, n) as pool, celery(spec, warm, n, scratch) as cel:
+            for _ in range(args.repeat):  # alternate, so both see the same machine load
+                rate, busy, cpu = pool(batch)
+                pool_rates.append(rate)
+                pool_busy.append(busy)
+                _add(pool_cpu, cpu)
+                rate, rep, busy, cpu = cel(batch)
+                cel_rates.append(rate)
+                cel_busy.append(busy)
+                _add(cel_cpu, cpu)
+                repeated += rep
+        ratios = [c / p for c, p in zip(cel_rates, pool_rates, strict=True)]
+        measured = len(batch) * args.repeat
+        pool_rate = statistics.median(pool_rates)
+        cel_rate = statistics.median(cel_rates)
+        pool_ms = _per_candidate(pool_cpu, measured)
+        cel_ms = _per_candidate(cel_cpu, measured)
+        sim_ms = 0.5 * (pool_ms["sim"] + cel_ms["sim"])
+        rows.append({"clip": clip, "workers": n, "pool_eval_per_s": pool_rate,
+                     "celery_eval_per_s": cel_rate, "ratio": statistics.median(ratios),
+                     "ratios": ratios,
+                     "overhead_ms": 1e3 * n * (1 / cel_rate - 1 / pool_rate),
+                     "repeated": repeated,
+                     "pool_busy": statistics.median(pool_busy),
+                     "celery_busy": statistics.median(cel_busy),
+                     "pool_cpu_ms_per_candidate": pool_ms,
+                     "celery_cpu_ms_per_candidate": cel_ms,
+                     "pool_overhead_ms": _overhead(pool_ms),
+                     "celery_overhead_ms": _overhead(cel_ms),
+                     "predicted_idle_ratio": (sim_ms + _overhead(pool_ms))
+                     / (sim_ms + _overhead(cel_ms)),
+                     "load": [load0, os.getloadavg()[0]]})
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--candidates", type=int, default=32)
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    p.add_argument("--clip", type=float, default=0.8, help="clip length in seconds")
+    p.add_argument("--clip", type=float, nargs="+", default=[0.8],
+                   help="clip lengths in seconds (each measured in turn)")
     p.add_argument("--repeat", type=int, default=3,
                    help="measurements per side, alternating pool and Celery (medians shown)")
     p.add_argument("--store", type=int, default=0, metavar="N",
                    help="also time run_candidate with a null objective N times")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
+    from cmrt.settings import get_settings
     from sim.spec import parse_spec
 
-    spec = parse_spec(_spec(args.clip))
-    batch = _batch(spec, args.candidates, 1)
     scratch = _Scratch()
     rows = []
     try:
-        for n in args.workers:
-            warm = _batch(spec, 2 * n, 100 + n)
-            pool_rates, cel_rates, repeated, pool_busy, cel_busy = [], [], 0, [], []
-            pool_cpu: dict[str, float] = {}
-            cel_cpu: dict[str, float] = {}
-            with bare_pool(spec, warm, n) as pool, celery(spec, warm, n, scratch) as cel:
-                for _ in range(args.repeat):  # alternate, so both see the same machine load
-                    rate, busy, cpu = pool(batch)
-                    pool_rates.append(rate)
-                    pool_busy.append(busy)
-                    _add(pool_cpu, cpu)
-                    rate, rep, busy, cpu = cel(batch)
-                    cel_rates.append(rate)
-                    cel_busy.append(busy)
-                    _add(cel_cpu, cpu)
-                    repeated += rep
-            ratios = [c / p for c, p in zip(cel_rates, pool_rates, strict=True)]
-            measured = len(batch) * args.repeat
-            pool_rate = statistics.median(pool_rates)
-            cel_rate = statistics.median(cel_rates)
-            rows.append({"workers": n, "pool_eval_per_s": pool_rate,
-                         "celery_eval_per_s": cel_rate, "ratio": statistics.median(ratios),
-                         "ratios": ratios,
-                         "overhead_ms": 1e3 * n * (1 / cel_rate - 1 / pool_rate),
-                         "repeated": repeated,
-                         "pool_busy": statistics.median(pool_busy),
-                         "celery_busy": statistics.median(cel_busy),
-                         "pool_cpu_ms_per_candidate": _per_candidate(pool_cpu, measured),
-                         "celery_cpu_ms_per_candidate": _per_candidate(cel_cpu, measured)})
-        store = store_path(spec, args.store, scratch) if args.store > 0 else None
+        for clip in args.clip:
+            rows += measure_clip(args, clip, scratch)
+        store = (store_path(parse_spec(_spec(args.clip[0])), args.store, scratch)
+                 if args.store > 0 else None)
     finally:
         scratch.close()
+    cfg = get_settings()
     if args.json:
-        print(json.dumps({"rows": rows, "store": store} if store else rows, indent=1))
+        print(json.dumps({"rows": rows, "store": store, "task_batch": cfg.task_batch,
+                          "dispatch_window": cfg.dispatch_window}, indent=1))
         return 0
-    print(f"clip {args.clip:g} s, {args.candidates} candidates per measurement, "
-          f"median of {args.repeat} alternating measurements per side")
-    print(f"{'workers':>7} {'pool eval/s':>12} {'celery eval/s':>14} {'ratio':>6} "
-          f"{'overhead ms/cand':>17} {'busy pool':>9} {'busy celery':>11}")
+    print(f"{args.candidates} candidates per measurement, median of {args.repeat} alternating "
+          f"measurements per side; CMRT_TASK_BATCH {cfg.task_batch}, CMRT_DISPATCH_WINDOW "
+          f"{cfg.dispatch_window}")
+    print(f"{'clip s':>6} {'workers':>7} {'pool eval/s':>12} {'celery eval/s':>14} {'ratio':>6} "
+          f"{'busy pool':>9} {'busy celery':>11} {'CPU model':>9} {'load':>9}")
     for r in rows:
-        print(f"{r['workers']:>7} {r['pool_eval_per_s']:>12.2f} {r['celery_eval_per_s']:>14.2f} "
-              f"{r['ratio']:>6.1%} {r['overhead_ms']:>17.1f} {r['pool_busy']:>9.1%} "
-              f"{r['celery_busy']:>11.1%}"
+        print(f"{r['clip']:>6g} {r['workers']:>7} {r['pool_eval_per_s']:>12.2f} "
+              f"{r['celery_eval_per_s']:>14.2f} {r['ratio']:>6.1%} {r['pool_busy']:>9.1%} "
+              f"{r['celery_busy']:>11.1%} {r['predicted_idle_ratio']:>9.1%} "
+              f"{r['load'][0]:>4.1f}-{r['load'][1]:<4.1f}"
               + (f"   ratios {' '.join(f'{x:.0%}' for x in r['ratios'])}" if args.repeat > 1
                  else ""))
-    print("CPU ms per candidate besides the simulation itself (all measurements; 'wall' is "
-          "wall ms per candidate):")
+    print("CPU ms per candidate (all measurements): the simulation ('sim'), the rest by process "
+          "('wall' is wall ms per candidate); 'CPU model': (sim + pool rest) / (sim + Celery "
+          "rest), the ratio on an idle machine with a core per worker")
     for r in rows:
         for side in ("pool", "celery"):
             parts = r[f"{side}_cpu_ms_per_candidate"]
-            print(f"  {r['workers']} worker(s), {side:>6}: " + ", ".join(
-                f"{k} {v:.2f}" for k, v in parts.items()))
+            print(f"  {r['clip']:g} s, {r['workers']} worker(s), {side:>6}: rest "
+                  f"{r[f'{side}_overhead_ms']:.2f} = " + ", ".join(
+                      f"{k} {v:.2f}" for k, v in parts.items() if k not in ("wall", "sim"))
+                  + f"; sim {parts['sim']:.1f}, wall {parts['wall']:.1f}")
     if store:
         print(f"store path (run_candidate, null objective, PostgreSQL): median "
               f"{store['store_ms_median']:.2f} ms, mean {store['store_ms_mean']:.2f} ms, "

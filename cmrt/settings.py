@@ -33,6 +33,7 @@ CMRT_MAX_JOB_SIM_SECONDS  ceiling of a job's budget (simulated s:     50000
                           evaluations x clip length; worker.admission)
 CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 4
                           has in the queue at once (fair share)
+CMRT_TASK_BATCH           Celery: most candidates per task            2
 CMRT_API_TOKEN            bearer token the API requires; unset: open  None
 CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
 CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
@@ -105,6 +106,9 @@ class Settings(BaseSettings):
     #: share the queue (a small job waits behind at most this many of a large one's); about
     #: twice the evaluation processes keeps them all busy between the driver's polls.
     dispatch_window: Annotated[int, Field(ge=1, le=10_000)] = 4
+    #: Celery: most candidates of one generation per evaluation task (fewer per-task costs in
+    #: the broker and the worker; see worker.executors.plan_batches); 1: one task per candidate.
+    task_batch: Annotated[int, Field(ge=1, le=1000)] = 2
     #: Log level of `cmrt serve` and `cmrt worker`.
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"] = "INFO"
 

@@ -158,18 +158,25 @@ def run_candidate(
     max_attempts: int,
     cache: SpecCache,
     worker_name: str | None = None,
+    notify: Callable[[str, int, int], Any] | None = None,
 ) -> dict[str, Any]:
-    """Evaluate one stored candidate and upsert its result; returns a small JSON dict."""
+    """Evaluate one stored candidate and upsert its result; returns a small JSON dict.
+    `notify(job_id, generation, index)` is called once the candidate is resolved in the store
+    (stored here, or found resolved already): the driver's wake-up (worker.notify)."""
     try:
         claim = with_reconnect(repo.claim_evaluation, job_id, generation, index)
     except NotFound:
         return {"status": "missing"}
     if claim.status != PENDING:
+        if notify is not None:
+            notify(job_id, generation, index)
         return {"status": claim.status, "skipped": True}
     if claim.attempts > max_attempts:
         msg = attempts_exhausted_message(generation, index, claim.attempts - 1)
         with_reconnect(repo.fail_evaluation, job_id, generation, index, msg)
         log.error("job %s: %s", job_id, msg)
+        if notify is not None:
+            notify(job_id, generation, index)
         return {"status": "failed", "attempts": claim.attempts}
     if claim.job_terminal:  # cancelled or failed meanwhile: don't spend CPU on it
         return {"status": "skipped", "job_status": claim.job_status}
@@ -181,6 +188,8 @@ def run_candidate(
         repo.store_result,
         job_id, generation, index, **outcome_fields(out, worker_name or socket.gethostname()),
     )
+    if notify is not None:
+        notify(job_id, generation, index)
     return {
         "status": DONE if changed else "duplicate",
         "objective": float(out.objective),

@@ -41,6 +41,11 @@ from worker.evaluation import (
     outcome_fields,
 )
 from worker.fairpool import FairPool
+from worker.notify import FALLBACK_POLL_S, NoticeWaiter
+
+#: While the workers' notices announce every result, the driver still reads the store this
+#: often, s: it finds a result whose notice was lost within this time, and an overdue candidate.
+STORE_READ_S = 2.0
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +224,37 @@ def _broker_errors() -> tuple[type[BaseException], ...]:
     return tuple(errs)
 
 
+def plan_batches(unsent: int, room: int, window: int, slots: int, cap: int) -> list[int]:
+    """Sizes of the tasks to send now for `unsent` candidates with `room` places left in the
+    job's dispatch window (`window` in all), for `slots` evaluation processes, at most `cap`
+    candidates per task.
+
+    A task carries `min(cap, window // slots, unsent // slots)` candidates (at least one):
+    never so many that the window holds fewer tasks than there are processes (each would wait
+    for the others' candidates), and fewer as the generation runs out, so its last candidates
+    go one per task and the processes finish together (a generation of 10 on 2 processes with
+    cap 2 and window 4: 2, 2, 2, 2, 1, 1). A task is sent only once the window has room for all
+    of it, except a single candidate: the processes stay busy on the rest of the window
+    meanwhile.
+    """
+    sizes: list[int] = []
+    slots = max(1, slots)
+    while unsent > 0 and room > 0:
+        size = max(1, min(cap, window // slots, unsent // slots))
+        if size > room:
+            break
+        sizes.append(size)
+        unsent -= size
+        room -= size
+    return sizes
+
+
 class CeleryExecutor(GenerationExecutor):
+    """Sends a generation's pending candidates as `evaluate_candidates` tasks (a few candidates
+    each, `plan_batches`) and waits for their results: blocked on the job's result notices
+    (worker.notify) when the broker is Redis, reading the store when one arrives and at least
+    every `notify.FALLBACK_POLL_S` s; polling the store (`PollSchedule`) otherwise."""
+
     kind = "celery"
 
     def __init__(self, config: Settings, app: Any | None = None) -> None:
@@ -230,6 +265,7 @@ class CeleryExecutor(GenerationExecutor):
         self.config = config
         self.app = app
         self.sent = 0
+        self.tasks = 0
         self.resent = 0
         self._errors = _broker_errors()
         self._lock = threading.Lock()
@@ -237,33 +273,50 @@ class CeleryExecutor(GenerationExecutor):
         #: Celery task ids of the messages sent, per (job, generation): what a cancel revokes.
         self._task_ids: dict[tuple[str, int], dict[int, str]] = {}
         self.revoked = 0
+        self._waiter = NoticeWaiter(config.broker_url if app is not None else None)
+
+    @property
+    def batch_cap(self) -> int:
+        """Most candidates per task: CMRT_TASK_BATCH, and few enough that a task of them all at
+        their time limit ends before Redis would re-deliver its message."""
+        by_limit = int((self.config.visibility_timeout - 1e-9) // self.config.eval_time_limit)
+        return max(1, min(self.config.task_batch, by_limit))
 
     # -- broker ------------------------------------------------------------------------------
     def _send(
-        self, job_id: str, generation: int, indices: Sequence[int], check: Checkpoint
+        self, job_id: str, generation: int, batches: Sequence[Sequence[int]], check: Checkpoint
     ) -> None:
-        from worker.celery_app import TASK_EVALUATE
+        """One `evaluate_candidates` task per batch of indices, with the time limits of its
+        length (`eval_time_limit` per candidate)."""
+        from worker.celery_app import TASK_EVALUATE_BATCH
 
-        pending = list(indices)
+        pending = [list(map(int, b)) for b in batches if len(b)]
         down_since: float | None = None
         delay = 0.2
+        limit = self.config.eval_time_limit
+        soft = max(1.0, limit - min(30.0, 0.1 * limit))
         while pending:
-            i = pending[0]
+            batch = pending[0]
+            n = len(batch)
             try:
                 res = self.app.send_task(
-                    TASK_EVALUATE,
-                    args=[job_id, generation, i],
+                    TASK_EVALUATE_BATCH,
+                    args=[job_id, generation, batch],
                     queue=self.config.queue,
                     retry=False,
                     # the store has the result: no result-backend subscription per task here,
                     # no result written by the worker
                     ignore_result=True,
+                    time_limit=n * limit,
+                    soft_time_limit=(n - 1) * limit + soft,
                 )
                 pending.pop(0)
-                self.sent += 1
+                self.sent += n
+                self.tasks += 1
                 if res is not None and getattr(res, "id", None):
                     with self._lock:
-                        self._task_ids.setdefault((job_id, generation), {})[i] = res.id
+                        ids = self._task_ids.setdefault((job_id, generation), {})
+                        ids.update(dict.fromkeys(batch, res.id))
                 down_since, delay = None, 0.2
             except self._errors as err:
                 now = time.monotonic()
@@ -294,14 +347,16 @@ class CeleryExecutor(GenerationExecutor):
         them unstarted) and kill the worker processes running them (`terminate`, SIGKILL)."""
         with self._lock:
             ids = self._task_ids.get((job_id, generation), {})
-            task_ids = [ids[i] for i in indices if i in ids]
+            task_ids = sorted({ids[i] for i in indices if i in ids})
+            # every candidate those tasks carry (a batch's finished ones are resolved already)
+            dropped = sum(1 for t in ids.values() if t in task_ids)
         if not task_ids:
             return
         try:
             self.app.control.revoke(task_ids, terminate=True, signal="SIGKILL")
-            self.revoked += len(task_ids)
-            log.info("job %s: revoked %d evaluations of generation %d", job_id, len(task_ids),
-                     generation)
+            self.revoked += dropped
+            log.info("job %s: revoked %d evaluations (%d tasks) of generation %d", job_id,
+                     dropped, len(task_ids), generation)
         except self._errors as err:  # the claims skip them anyway (the job is terminal)
             log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
 
@@ -316,67 +371,97 @@ class CeleryExecutor(GenerationExecutor):
         `visibility_timeout + eval_time_limit` s after it was sent, by which time Redis would
         have re-delivered an unacknowledged message anyway. On cancel the sent evaluations are
         revoked (`_revoke`) before the interrupt propagates.
+
+        Waiting: a notice names a resolved candidate (the worker sends it after the store has
+        the result), so it frees its place in the window at once; the store is read (one count
+        query) when the notices say that every candidate is resolved, and at least every
+        `STORE_READ_S` s. A read that finds a result no notice announced (notices lost, or not
+        sent) turns the rest of the generation to reading the store after every wait, each
+        wait ending after `PollSchedule`'s delay or at the next notice. The driver's checkpoint
+        (cancel flag, lease, shutdown) runs at least every `FALLBACK_POLL_S` s.
         """
         rows = repo.evaluations(job_id, generation)
         unsent = deque(r.index for r in rows if r.status == PENDING)
         schedule = PollSchedule(time.monotonic(), self.config.poll_interval)
-        window = self.config.dispatch_window
+        window, cap = self.config.dispatch_window, self.batch_cap
+        # the evaluation processes are not known here: the window is sized at about twice
+        # their number (docs/service.md), so batches never leave one of them without a task
+        slots = max(1, window // 2)
         sent_at: dict[int, float] = {}  # sent, not seen resolved yet
 
         def top_up() -> None:
-            batch = []
-            while unsent and len(sent_at) + len(batch) < window:
-                batch.append(unsent.popleft())
-            if batch:
-                self._send(job_id, generation, batch, check)
-                sent_at.update(dict.fromkeys(batch, time.monotonic()))
+            sizes = plan_batches(len(unsent), window - len(sent_at), window, slots, cap)
+            batches = [[unsent.popleft() for _ in range(n)] for n in sizes]
+            if batches:
+                self._send(job_id, generation, batches, check)
+                now = time.monotonic()
+                for b in batches:
+                    sent_at.update(dict.fromkeys(b, now))
 
         try:
             top_up()
             last_send = time.monotonic()
             resolved = initially = population - len(unsent) - len(sent_at)
             overdue_after = self.config.visibility_timeout + self.config.eval_time_limit
+            read_store, last_read = True, 0.0
+            trusted = True  # until the store holds a result no notice announced
             while True:
-                counts = repo.evaluation_counts(job_id, generation)
-                if counts.resolved >= population:
-                    if counts.resolved > resolved:
-                        self._progress()
-                    return repo.evaluations(job_id, generation)
                 now = time.monotonic()
-                pending: set[int] | None = None
-                if counts.resolved > resolved:
-                    resolved = counts.resolved
-                    self._progress()
-                    pending = {r.index for r in repo.evaluations(job_id, generation)
-                               if r.status == PENDING}
-                    for i in [i for i in sent_at if i not in pending]:
-                        del sent_at[i]
-                    unsent = deque(i for i in unsent if i in pending)
-                    top_up()
-                with self._lock:
-                    quiet = now - max(self._last_progress, last_send)
-                overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
-                if quiet > self.config.stall_timeout or overdue:
-                    if pending is None:
+                if read_store or now - last_read >= (STORE_READ_S if trusted else 0.0):
+                    last_read = now
+                    counts = repo.evaluation_counts(job_id, generation)
+                    if counts.resolved >= population:
+                        if counts.resolved > resolved:
+                            self._progress()
+                        return repo.evaluations(job_id, generation)
+                    pending: set[int] | None = None
+                    if counts.resolved > resolved:  # results the notices did not announce
+                        trusted = False  # notices lost or not sent: read after every wait
+                        resolved = counts.resolved
+                        self._progress()
                         pending = {r.index for r in repo.evaluations(job_id, generation)
                                    if r.status == PENDING}
-                    again = sorted(set(sent_at).intersection(pending) if not overdue
-                                   else pending.intersection(overdue))
-                    if again:
-                        log.warning(
-                            "job %s generation %d: %s; sending %d unresolved evaluations again",
-                            job_id, generation,
-                            f"no evaluation finished for {quiet:.0f} s" if not overdue
-                            else f"{len(overdue)} overdue", len(again))
-                        self._send(job_id, generation, again, check)
-                        self.resent += len(again)
-                    last_send = time.monotonic()
-                    sent_at.update(dict.fromkeys(again, last_send))
-                    for i in [i for i in sent_at if i not in pending]:
-                        del sent_at[i]
+                        for i in [i for i in sent_at if i not in pending]:
+                            del sent_at[i]
+                        unsent = deque(i for i in unsent if i in pending)
+                        top_up()
+                    with self._lock:
+                        quiet = now - max(self._last_progress, last_send)
+                    overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
+                    if quiet > self.config.stall_timeout or overdue:
+                        if pending is None:
+                            pending = {r.index for r in repo.evaluations(job_id, generation)
+                                       if r.status == PENDING}
+                        again = sorted(set(sent_at).intersection(pending) if not overdue
+                                       else pending.intersection(overdue))
+                        if again:
+                            log.warning(
+                                "job %s generation %d: %s; sending %d unresolved evaluations "
+                                "again", job_id, generation,
+                                f"no evaluation finished for {quiet:.0f} s" if not overdue
+                                else f"{len(overdue)} overdue", len(again))
+                            self._send(job_id, generation, [[i] for i in again], check)
+                            self.resent += len(again)
+                        last_send = time.monotonic()
+                        sent_at.update(dict.fromkeys(again, last_send))
+                        for i in [i for i in sent_at if i not in pending]:
+                            del sent_at[i]
                 check()
-                time.sleep(schedule.delay(time.monotonic(), counts.resolved - initially,
-                                          population - counts.resolved))
+                wait = schedule.delay(time.monotonic(), resolved - initially,
+                                      population - resolved)
+                notes = self._waiter.wait(job_id, FALLBACK_POLL_S if trusted else wait)
+                if notes is None:  # no notices here: poll the store
+                    time.sleep(wait)
+                    read_store = True
+                    continue
+                done = [i for g, i in notes if g == generation and i in sent_at]
+                for i in done:
+                    del sent_at[i]
+                if done:
+                    resolved += len(done)
+                    self._progress()
+                    top_up()
+                read_store = not trusted or (not sent_at and not unsent)
         except DriverInterruptError as why:
             if str(why) == "cancel":
                 self._revoke(job_id, generation, list(sent_at))
@@ -384,9 +469,11 @@ class CeleryExecutor(GenerationExecutor):
         finally:
             with self._lock:
                 self._task_ids.pop((job_id, generation), None)
+            self._waiter.discard(job_id)
 
     def stats(self):
-        return {"sent": self.sent, "resent": self.resent, "revoked": self.revoked}
+        return {"sent": self.sent, "tasks": self.tasks, "resent": self.resent,
+                "revoked": self.revoked}
 
 
 def make_generation_executor(settings: Settings) -> GenerationExecutor:

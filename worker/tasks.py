@@ -1,11 +1,16 @@
-"""Celery tasks. `evaluate_candidate(job_id, generation, index)`: ids in, a small dict out;
-the parameters come from, and the result goes to, the store (see worker.evaluation).
+"""Celery tasks: `evaluate_candidates(job_id, generation, indices)` (what the driver sends: a
+few candidates of one generation per task, see worker.executors.batch_sizes) and
+`evaluate_candidate(job_id, generation, index)` (one candidate; kept for messages sent before
+batches existed). Ids in, small dicts out; the parameters come from, and the results go to, the
+store (see worker.evaluation), each candidate claimed and stored on its own, so a worker killed
+mid-task loses only the candidate it was running: the re-delivered message skips the ones
+already stored. After each stored result the job's driver is notified (worker.notify).
 
 Each worker pool process opens its own repository lazily (after the fork) and keeps one
 simulator per job (worker.evaluation.SpecCache), so consecutive candidates of a job reuse the
 ODE world.
 
-`ignore_result=True`: nothing reads a task's return value (the driver polls the store, never
+`ignore_result=True`: nothing reads a task's return value (the driver reads the store, never
 `.get()`), so no result is written to the result backend; the small dict returned is only
 logged by the worker.
 """
@@ -19,11 +24,13 @@ from typing import Any
 from celery.signals import worker_process_init
 
 from cmrt.settings import get_settings
-from worker.celery_app import TASK_EVALUATE, app
+from worker.celery_app import TASK_EVALUATE, TASK_EVALUATE_BATCH, app
 from worker.evaluation import SpecCache, open_worker_repository, run_candidate
+from worker.notify import Notifier
 
 _lock = threading.Lock()
 _repo = None
+_notifier: Notifier | None = None
 _cache = SpecCache()
 
 
@@ -35,16 +42,28 @@ def _repository():
         return _repo
 
 
+def _notify(job_id: str, generation: int, index: int) -> None:
+    global _notifier
+    if _notifier is None:
+        _notifier = Notifier(get_settings().broker_url)
+    _notifier.notify(job_id, generation, index)
+
+
 @worker_process_init.connect
 def _fresh_process(**_: Any) -> None:  # never reuse the parent's connections after fork
-    global _repo
+    global _repo, _notifier
     _repo = None
+    _notifier = None
+
+
+def _worker_name(task: Any) -> str:
+    node = getattr(task.request, "hostname", None) or f"pid{os.getpid()}"
+    return f"{node}/{os.getpid()}"
 
 
 @app.task(name=TASK_EVALUATE, bind=True, acks_late=True, reject_on_worker_lost=True,
           ignore_result=True)
 def evaluate_candidate(self, job_id: str, generation: int, index: int) -> dict[str, Any]:
-    node = getattr(self.request, "hostname", None) or f"pid{os.getpid()}"
     return run_candidate(
         _repository(),
         job_id,
@@ -52,5 +71,16 @@ def evaluate_candidate(self, job_id: str, generation: int, index: int) -> dict[s
         int(index),
         max_attempts=get_settings().max_attempts,
         cache=_cache,
-        worker_name=f"{node}/{os.getpid()}",
+        worker_name=_worker_name(self),
+        notify=_notify,
     )
+
+
+@app.task(name=TASK_EVALUATE_BATCH, bind=True, acks_late=True, reject_on_worker_lost=True,
+          ignore_result=True)
+def evaluate_candidates(self, job_id: str, generation: int,
+                        indices: list[int]) -> list[dict[str, Any]]:
+    """The candidates in order, each claimed, evaluated, stored and notified on its own."""
+    repo, name, limit = _repository(), _worker_name(self), get_settings().max_attempts
+    return [run_candidate(repo, job_id, int(generation), int(i), max_attempts=limit,
+                          cache=_cache, worker_name=name, notify=_notify) for i in indices]

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from cmrt.settings import Settings
-from worker.celery_app import TASK_EVALUATE, make_celery
-from worker.executors import MIN_POLL_INTERVAL, CeleryExecutor, PollSchedule
+from worker.celery_app import TASK_EVALUATE, TASK_EVALUATE_BATCH, make_celery
+from worker.executors import MIN_POLL_INTERVAL, CeleryExecutor, PollSchedule, plan_batches
 
 
 @pytest.fixture
@@ -19,11 +19,13 @@ def config(tmp_path):
 
 
 def test_evaluation_task_settings() -> None:
-    from worker.tasks import evaluate_candidate
+    from worker.tasks import evaluate_candidate, evaluate_candidates
 
     assert evaluate_candidate.name == TASK_EVALUATE
-    assert evaluate_candidate.acks_late and evaluate_candidate.reject_on_worker_lost
-    assert evaluate_candidate.ignore_result  # the driver reads the store, never a result
+    assert evaluate_candidates.name == TASK_EVALUATE_BATCH
+    for task in (evaluate_candidate, evaluate_candidates):
+        assert task.acks_late and task.reject_on_worker_lost
+        assert task.ignore_result  # the driver reads the store, never a result
 
 
 def test_app_settings_follow_the_design(config) -> None:
@@ -47,12 +49,37 @@ class _RecordingApp:
 def test_driver_sends_ids_only_and_asks_for_no_result(config) -> None:
     app = _RecordingApp()
     ex = CeleryExecutor(config, app)
-    ex._send("job-1", 3, [0, 2], lambda: None)
-    assert [(n, a) for n, a, _ in app.sent] == [(TASK_EVALUATE, ["job-1", 3, 0]),
-                                              (TASK_EVALUATE, ["job-1", 3, 2])]
+    ex._send("job-1", 3, [[0, 2], [5]], lambda: None)
+    assert [(n, a) for n, a, _ in app.sent] == [(TASK_EVALUATE_BATCH, ["job-1", 3, [0, 2]]),
+                                              (TASK_EVALUATE_BATCH, ["job-1", 3, [5]])]
     for _, _, options in app.sent:
         assert options["ignore_result"] is True and options["queue"] == config.queue
-    assert ex.sent == 2
+    # the time limits scale with the task's candidates (60 s each, the soft one 6 s earlier)
+    assert [(o["time_limit"], o["soft_time_limit"]) for _, _, o in app.sent] == [
+        (120, 114), (60, 54)]
+    assert (ex.sent, ex.tasks) == (3, 2)
+
+
+def test_batches_shrink_to_one_candidate_per_task_at_the_end_of_a_generation() -> None:
+    # a generation of 10 on 2 processes, window 4, at most 2 per task
+    assert plan_batches(10, room=4, window=4, slots=2, cap=2) == [2, 2]
+    assert plan_batches(6, room=2, window=4, slots=2, cap=2) == [2]
+    assert plan_batches(4, room=1, window=4, slots=2, cap=2) == []  # waits for room for 2
+    assert plan_batches(3, room=2, window=4, slots=2, cap=2) == [1, 1]
+    assert plan_batches(1, room=4, window=4, slots=2, cap=2) == [1]
+    # never fewer tasks in the window than processes; cap 1 is one task per candidate
+    assert plan_batches(32, room=8, window=8, slots=2, cap=8) == [4, 4]
+    assert plan_batches(32, room=4, window=4, slots=4, cap=8) == [1, 1, 1, 1]
+    assert plan_batches(5, room=4, window=4, slots=2, cap=1) == [1, 1, 1, 1]
+
+
+def test_batch_cap_keeps_a_task_inside_the_visibility_timeout(config) -> None:
+    # 60 s per candidate, Redis re-delivers after 120 s: one candidate per task at most ...
+    assert CeleryExecutor(config.model_copy(update={"task_batch": 8}), _RecordingApp()
+                          ).batch_cap == 1
+    # ... and with room for five, five
+    five = config.model_copy(update={"task_batch": 8, "visibility_timeout": 301})
+    assert CeleryExecutor(five, _RecordingApp()).batch_cap == 5
 
 
 def test_poll_schedule_backs_off_until_the_first_result() -> None:
