@@ -308,6 +308,8 @@ class Physics:
             names.append(p.name)
             self._geom_owner[id(p.geom)] = p.name
         self._prop_by_name = {p.name: p for p in self.props}
+        self._prop_bodies = [p.body for p in self.props]
+        self._prop_bodies += [link for p in self.props for link in p.links]
         self._body_index = {n: i for i, n in enumerate(ch.body_names)}
         self.prop_group = ode.JointGroup()
         self.prop_contacts: list[tuple[ode.ContactJoint, str, str, str | None,
@@ -506,15 +508,17 @@ class Physics:
             if not s < MAX_SPIN * MAX_SPIN:
                 return ("non-finite character state" if not math.isfinite(s)
                         else "character moving impossibly fast")
-            bodies = [p.body for p in self.props]
-            bodies += [link for p in self.props for link in p.links]
+            bodies = self._prop_bodies
         else:
             bodies = self._all_bodies()
         for b in bodies:
             v = b.getLinearVel()
             w = b.getAngularVel()[2]
             x = b.getPosition()
-            if not all(math.isfinite(c) for c in (*v, w, *x)):
+            # A finite sum means every term is finite; only a non-finite sum (or an overflow)
+            # needs the term-by-term test (one isfinite instead of seven, every 10 steps).
+            if (not math.isfinite(v[0] + v[1] + v[2] + w + x[0] + x[1] + x[2])
+                    and not all(math.isfinite(c) for c in (*v, w, *x))):
                 return "non-finite state"
             if math.hypot(v[0], v[1]) > MAX_SPEED or abs(w) > MAX_SPIN:
                 return "a body moving impossibly fast"
