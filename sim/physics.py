@@ -66,6 +66,8 @@ MAX_SPIN = 1000.0
 
 # Collision categories (ODE category / collide bits).
 _GROUND, _CHARACTER, _PROP = 1, 2, 4
+#: Per-geom category bits (`Physics._assign_collision_bits`) fit ODE's unsigned long.
+MAX_COLLISION_BITS = 63
 _CAPSULE_ALONG_Y = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)  # local z -> world y
 
 #: Contact kinds reported by `Physics.contact_list`.
@@ -270,6 +272,7 @@ class Physics:
             self.hinges.append(j)
         self._torque_limits = ch.torque_limits.tolist()
         self._torque_limit_array = np.array(self._torque_limits, dtype=float)
+        self._neg_torque_limit_array = -self._torque_limit_array  # (not negated every step)
         self.plane = ode.Plane2DJoint(self.world)
         self.plane.attach(self.bodies[0], ode.environment)
         self.contact_group = ode.JointGroup()
@@ -305,6 +308,8 @@ class Physics:
             names.append(p.name)
             self._geom_owner[id(p.geom)] = p.name
         self._prop_by_name = {p.name: p for p in self.props}
+        self._prop_bodies = [p.body for p in self.props]
+        self._prop_bodies += [link for p in self.props for link in p.links]
         self._body_index = {n: i for i, n in enumerate(ch.body_names)}
         self.prop_group = ode.JointGroup()
         self.prop_contacts: list[tuple[ode.ContactJoint, str, str, str | None,
@@ -319,6 +324,54 @@ class Physics:
         #: Joints made at run time (a catch's weld, a chain's hinges): (joint, prop name,
         #: body or prop name), kept referenced (PyODE destroys a joint whose object dies).
         self.attachments: list[tuple[ode.FixedJoint | ode.HingeJoint, str, str]] = []
+        self._pair_bits: list[tuple[ode.GeomObject, int, int]] | None = None
+        self._owner_bit: dict[str, int] = {}
+        self._assign_collision_bits()
+
+    def _assign_collision_bits(self) -> None:
+        """One category bit per geom of the space, collide bits listing the geoms each may
+        touch (the ground and the character's geoms: every prop; a prop: the ground, the
+        character's geoms and the other props), as the shared category bits allowed. With a
+        bit per geom, `_set_collide_bits` can also drop the pairs a run-time joint connects:
+        `_near` returns at `areConnected` for those without making a contact, so ODE skipping
+        them keeps every contact and its order, and saves a Python callback per pair and step
+        (a pulled chain's 7 joined pairs). More geoms than bits: the shared bits stay."""
+        ch_geoms = list(self.geoms.values())
+        geoms = [self.ground, *ch_geoms, *(p.geom for p in self.props)]
+        if len(geoms) > MAX_COLLISION_BITS:
+            return
+        bits = {id(g): 1 << i for i, g in enumerate(geoms)}
+        prop_bits = sum(bits[id(p.geom)] for p in self.props)
+        base = [(self.ground, bits[id(self.ground)], prop_bits)]
+        base += [(g, bits[id(g)], prop_bits) for g in ch_geoms]
+        ground_and_character = bits[id(self.ground)] | sum(bits[id(g)] for g in ch_geoms)
+        base += [(p.geom, bits[id(p.geom)], ground_and_character | (prop_bits & ~bits[id(p.geom)]))
+                 for p in self.props]
+        self._pair_bits = base
+        # name -> bits of its geoms: a prop's one geom, a body's geoms (none for most bodies)
+        for g, bit, _mask in base[1:]:
+            owner = self._geom_owner[id(g)]
+            self._owner_bit[owner] = self._owner_bit.get(owner, 0) | bit
+        for g, bit, mask in base:
+            g.setCategoryBits(bit)
+            g.setCollideBits(mask)
+
+    def _set_collide_bits(self) -> None:
+        """Collide bits without the pairs that the run-time joints connect (see
+        `_assign_collision_bits`)."""
+        if self._pair_bits is None:
+            return
+        drop: dict[int, int] = {}  # geom bit -> bits of the geoms it is joined to
+        for _j, prop, other in self.attachments:
+            a, b = self._owner_bit.get(prop, 0), self._owner_bit.get(other, 0)
+            for x, y in ((a, b), (b, a)):
+                k = x
+                while k:
+                    low = k & -k
+                    drop[low] = drop.get(low, 0) | y
+                    k ^= low
+        for g, bit, mask in self._pair_bits:
+            g.setCollideBits(mask & ~drop.get(bit, 0))
 
     def _character_geom(self, g) -> ode.GeomObject:
         body = self.bodies[g.body]
@@ -455,15 +508,17 @@ class Physics:
             if not s < MAX_SPIN * MAX_SPIN:
                 return ("non-finite character state" if not math.isfinite(s)
                         else "character moving impossibly fast")
-            bodies = [p.body for p in self.props]
-            bodies += [link for p in self.props for link in p.links]
+            bodies = self._prop_bodies
         else:
             bodies = self._all_bodies()
         for b in bodies:
             v = b.getLinearVel()
             w = b.getAngularVel()[2]
             x = b.getPosition()
-            if not all(math.isfinite(c) for c in (*v, w, *x)):
+            # A finite sum means every term is finite; only a non-finite sum (or an overflow)
+            # needs the term-by-term test (one isfinite instead of seven, every 10 steps).
+            if (not math.isfinite(v[0] + v[1] + v[2] + w + x[0] + x[1] + x[2])
+                    and not all(math.isfinite(c) for c in (*v, w, *x))):
                 return "non-finite state"
             if math.hypot(v[0], v[1]) > MAX_SPEED or abs(w) > MAX_SPIN:
                 return "a body moving impossibly fast"
@@ -478,7 +533,8 @@ class Physics:
         lim = self._torque_limit_array
         if len(tau) != len(self.hinges):
             raise ValueError(f"apply_torques: {len(tau)} torques for {len(self.hinges)} hinges")
-        list(map(_ADD_TORQUE, self.hinges, np.minimum(np.maximum(tau, -lim), lim).tolist()))
+        list(map(_ADD_TORQUE, self.hinges,
+                 np.minimum(np.maximum(tau, self._neg_torque_limit_array), lim).tolist()))
 
     def add_force(self, b: int, fx: float, fy: float = 0.0) -> None:
         """An external force (N) at body b's CoM for the next step."""
@@ -517,6 +573,7 @@ class Physics:
             j.setAxis((0.0, 0.0, 1.0))
         j.setFeedback(True)
         self.attachments.append((j, prop, other))
+        self._set_collide_bits()
         for joined in (p, q):
             if joined is not None:
                 joined.plane.attach(None, None)  # the joints keep it in the plane now
@@ -538,7 +595,9 @@ class Physics:
                 p = self._prop_by_name.get(name)
                 if p is not None and p.definition.hanging is None:
                     p.plane.attach(p.body, ode.environment)
-        self.attachments.clear()
+        if self.attachments:
+            self.attachments.clear()
+            self._set_collide_bits()
 
     # ---- contacts ------------------------------------------------------------------------
     def make_contacts(self, points: np.ndarray, feet_of_points: list[int]) -> None:

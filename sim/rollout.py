@@ -34,7 +34,13 @@ from sim.character import ROOT_DOF, Character
 from sim.controllers import FallController
 from sim.controllers.base import Cmrt, Controller, Observation, stance_terms
 from sim.controllers.registry import ControllerContext, build_controller
-from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics, step_model_into
+from sim.dynamics import (
+    GRAVITY,
+    ModelArrays,
+    PackedModel,
+    forward_kinematics,
+    step_model_packed,
+)
 from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
 from sim.recording import FRAME_EVERY, Recorder
@@ -175,14 +181,13 @@ class Rollout:
         lost = False
         c_ref = (self.cm0[0], 0.0)
         k_done = 0
-        # The model terms are written into these arrays every step (step_model_into): the
+        # The model terms are written into these arrays every step (step_model_packed): the
         # Observation's arrays hold this step's values only, as q and qd (read_state) do.
-        n, nf = ch.ndof, len(ch.feet)
-        model = (np.empty((n, n)), np.empty(n), np.empty(2), np.empty(2), np.empty((2, n)),
-                 np.empty(n), np.empty((3 * nf, n)), np.empty((2 * nf, 2)), np.empty(nf))
-        M, h, c, cd, A_L, A_H, Js, pts, sole_x = model
-        margs = a.args() + (a.feet, a.sole_local, a.heel_local, a.toe_local, a.point_body,
-                            a.point_local, a.point_radius) + model
+        # (`PackedModel`: views of one buffer, the constants in three arrays, so that the one
+        # compiled call per step unboxes 6 arguments, not 24.)
+        pack = PackedModel(a, ch.ndof)
+        M, h, c, cd, A_L, A_H, Js, pts, sole_x = pack.arrays()
+        pargs = pack.args()
         read_state, diverged = phys.read_state, phys.diverged
         apply_torques, make_contacts, world_step = phys.apply_torques, phys.make_contacts, phys.step
         contact_forces, clear_contacts = phys.contact_forces, phys.clear_contacts
@@ -205,7 +210,7 @@ class Rollout:
                 if why is not None:
                     raise DivergenceError(f"{self.spec.name}: the simulation diverged at "
                                           f"t = {t:.3f} s ({why})")
-            lo, hi, clearance = step_model_into(q, qd, *margs)
+            lo, hi, clearance = step_model_packed(q, qd, *pargs)
             stance = getattr(active, "stance", None)
             if stance is not None:
                 # New arrays for the stance feet only; the full ones stay the model's buffers.

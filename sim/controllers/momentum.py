@@ -42,8 +42,8 @@ from sim.dynamics import (
     WRENCH_OK,
     WRENCH_REASONS,
     ModelArrays,
-    checked_inverse_dynamics,
     checked_inverse_dynamics_feet,
+    checked_inverse_dynamics_lift,
     momentum_bias,
 )
 from sim.trajectory import PoseTrajectory, ease
@@ -223,14 +223,16 @@ class MomentumController:
             tau, code, _cop = checked_inverse_dynamics_feet(
                 obs.M, obs.h, obs.Js, self.qdd, obs.points, obs.sole_x, lo, hi, self.mu,
                 FOOT_COP_MARGIN)
+            top = max(obs.points[:, 1].tolist())
         else:
-            tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.qdd,
-                                                       obs.sole_x, lo, hi, self.mu)
+            # One compiled call for the wrench and the stance heels' and toes' highest point.
+            tau, code, _cop, top = checked_inverse_dynamics_lift(
+                obs.M, obs.h, obs.Js, self.qdd, obs.sole_x, obs.points, lo, hi, self.mu)
         violations = self._violation_steps + 1 if code != WRENCH_OK else 0
         self._violation_steps = violations
         if code == WRENCH_NO_NORMAL_FORCE or violations * self.dt > WRENCH_VIOLATION_LIMIT:
             self.lost = WRENCH_REASONS[code]
-        elif max(obs.points[:, 1].tolist()) > self.foot_lift_limit:  # stance heels and toes
+        elif top > self.foot_lift_limit:  # stance heels and toes
             self.lost = "foot_lift"
         return tau
 

@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from numba import njit
 
 from sim import load_spec
 from sim.character import ROOT_DOF
 from sim.dynamics import (
     GRAVITY,
+    PackedModel,
+    checked_inverse_dynamics,
+    checked_inverse_dynamics_lift,
     dynamics,
     forward_kinematics,
     point_jacobian,
     step_model,
     step_model_into,
+    step_model_packed,
     velocity_accelerations,
 )
 from sim.rollout import Rollout
@@ -81,4 +86,42 @@ def test_sparse_dynamics_and_step_model_into_are_bit_identical() -> None:
         tail = step_model_into(q, qd, *margs, *bufs)
         for x, y in zip(bufs + tuple(tail), ref, strict=True):
             assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
+    sim.close()
+
+
+@pytest.mark.parametrize("character", ["humanoid", "sumo", "lion"])
+def test_packed_step_model_and_fused_inverse_dynamics_are_bit_identical(character) -> None:
+    """`step_model_packed` (constants and outputs packed, 6 arguments) gives the bytes of
+    `step_model`, and `checked_inverse_dynamics_lift` those of `checked_inverse_dynamics` plus
+    Python's `max` of the points' heights, over random states of every character file."""
+    from sim.spec import parse_spec
+
+    spec = parse_spec({"name": "k", "character": {"model": character},
+                       "task": {"type": "quiet_stance"},
+                       "clip": {"preparation": 0.0, "duration": 0.01, "decay": 0.0}})
+    sim = Rollout(spec)
+    a = sim.arrays
+    margs = a.args() + (a.feet, a.sole_local, a.heel_local, a.toe_local, a.point_body,
+                        a.point_local, a.point_radius)
+    n = len(sim.q0)
+    pack = PackedModel(a, n)
+    rng = np.random.default_rng(151)
+    for i in range(300):
+        q = sim.q0 + rng.normal(0.0, 0.5, n)
+        qd = rng.normal(0.0, 3.0, n)
+        ref = step_model(q, qd, *margs)
+        tail = step_model_packed(q, qd, *pack.args())
+        for x, y in zip(pack.arrays() + tuple(tail), ref, strict=True):
+            assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
+        M, h, _c, _cd, _al, _ah, Js, pts, sole_x, lo, hi, _cl = ref
+        qdd = rng.normal(0.0, 5.0, n)
+        if i % 50 == 0:  # NaN heights: max() keeps the first value unless a later one is >
+            pts = pts.copy()
+            pts[i // 50 % len(pts), 1] = np.nan
+        tau, code, cop = checked_inverse_dynamics(M, h, Js, qdd, sole_x, lo, hi, 1.0)
+        tau2, code2, cop2, top = checked_inverse_dynamics_lift(M, h, Js, qdd, sole_x, pts, lo,
+                                                               hi, 1.0)
+        assert tau.tobytes() == tau2.tobytes() and code == code2
+        assert np.float64(cop).tobytes() == np.float64(cop2).tobytes()
+        assert np.float64(top).tobytes() == np.float64(max(pts[:, 1].tolist())).tobytes()
     sim.close()

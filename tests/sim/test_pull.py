@@ -218,3 +218,49 @@ def test_physics_join_hinges_props_and_reset_drops_the_joints():
         assert not ph.attachments and ph.prop("r0").free and ph.prop("r1").free
     finally:
         ph.close()
+
+
+def test_joined_pairs_skip_the_collision_callback_with_the_same_contacts():
+    """Per-geom collide bits drop the pairs a run-time joint connects (the chain's links, the
+    grip, the box's hinge): the clip makes the same contacts in the same order, so its
+    evaluation and every step's contact list are the same as with the shared category bits
+    (every pair tested, the joined ones returning at `areConnected`), with fewer callbacks."""
+    spec = load_spec(EXAMPLE)
+
+    def run(shared_bits: bool):
+        sim = Rollout(spec)
+        phys = sim.physics
+        if shared_bits:  # the scheme before per-geom bits: ground 1, character 2, props 4
+            phys._pair_bits = None
+            phys.ground.setCategoryBits(1)
+            phys.ground.setCollideBits(4)
+            for g in phys.geoms.values():
+                g.setCategoryBits(2)
+                g.setCollideBits(4)
+            for p in phys.props:
+                p.geom.setCategoryBits(4)
+                p.geom.setCollideBits(7)
+        calls, contacts = [0], []
+        near, forces = phys._near, phys.contact_forces
+
+        def counting_near(*args):
+            calls[0] += 1
+            near(*args)
+
+        def recording_forces():
+            contacts.append(phys.contact_list())
+            return forces()
+
+        phys._near, phys.contact_forces = counting_near, recording_forces
+        ev = sim.run()
+        sim.close()
+        return ev, contacts, calls[0]
+
+    ev_bits, contacts_bits, calls_bits = run(False)
+    ev_shared, contacts_shared, calls_shared = run(True)
+    a, b = ev_bits.to_dict(), ev_shared.to_dict()
+    del a["cpu_seconds"], b["cpu_seconds"]
+    assert repr(a) == repr(b)
+    assert contacts_bits == contacts_shared
+    assert any(c.kind != "foot-ground" for step in contacts_bits for c in step)
+    assert calls_bits * 4 < calls_shared
