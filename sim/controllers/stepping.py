@@ -69,9 +69,6 @@ TOUCHDOWN_HEIGHT = 0.0005
 #: rad/s: the legs' reference rates (finite differences of two IK postures) are bounded so
 #: that an IK jump near a straight knee cannot command a violent acceleration.
 MAX_REFERENCE_RATE = 15.0
-#: The swing foot cannot land before this fraction of the planned swing (it starts on the
-#: ground).
-MIN_SWING_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -102,7 +99,16 @@ class SteppingParams:
     #: rises as the CM passes over the front foot)
     landed_lift_limit: float = FOOT_LIFT_LIMIT
     swing_qp_period: float = 0.005  # s between the swing QP solves (feet-fixed: 1/60 s)
-    max_steps: int = 3  # steps in one clip (the first and the follow-ups)
+    #: The swing foot cannot land before this fraction of the planned swing (it starts on the
+    #: ground)
+    min_swing_fraction: float = 0.5
+    #: s: the swing's support wrench may need a pulling ground this long before balance is
+    #: lost (feet fixed: at once); a swing foot scuffing the ground (contacts the swing
+    #: model does not have) gives such transients of a few ms
+    no_normal_force_limit: float = 0.03
+    #: steps in one clip (the first and the follow-ups): a 300 N / 0.4 s push forward takes
+    #: four (three long ones and one to settle)
+    max_steps: int = 6
     landed_cop_margin: float = 0.02  # m, the CoP constraint of the QP after landing (0: off)
     settle_time: float = 0.3  # s, the legs' reference goes from touch-down to the held posture
     #: True: the longest step (`max_step_fraction`) is measured from the stance foot's sole
@@ -113,6 +119,9 @@ class SteppingParams:
     #: controller's plan gives it (the push is not known to the controller), held over the rest
     #: of the swing by the landing's IPM (0: no estimate, the plain IPM)
     push_filter: float = 0.02
+    #: s after touch-down during which the estimate is held at 0: the landing's impact is
+    #: not a push
+    push_hold: float = 0.05
     #: True: after landing, a capture point beyond the wider support by more than
     #: `landed_capture_margin` starts the next step at once (`landed_min_time` after
     #: touch-down) instead of waiting for the feet-fixed controller's failure
@@ -289,7 +298,7 @@ class SteppingController:
 
     def act(self, obs: Observation, t: float) -> np.ndarray:
         """Hinge torques for this step (see the module doc for the phases)."""
-        self._observe_push(obs)
+        self._observe_push(obs, t)
         if self.phase in ("feet_fixed", "pending"):
             tau = self._feet_fixed(obs, t)
             self._planned_accel(obs, self.feet_fixed.qdd, 0.0)
@@ -320,13 +329,18 @@ class SteppingController:
                 self.lost = self.landed_qp.lost
         return tau
 
-    def _observe_push(self, obs: Observation) -> None:
+    def _observe_push(self, obs: Observation, t: float) -> None:
         """Update the push estimate: the measured CM acceleration (a finite difference of the
         CM velocity over one step) minus the one the controller's last plan gave it, low-passed
-        over `push_filter` s. Only the measured state enters: the force is unknown here."""
+        over `push_filter` s, and held at 0 for `push_hold` s after a touch-down. Only the
+        measured state enters: the force is unknown here."""
         tau_f = self.params.push_filter
         cdx = float(obs.cd[0])
-        if tau_f > 0.0 and self._cd_prev is not None:
+        landing = (self.phase == "landed" and self.steps
+                   and t - (self.steps[-1].touchdown or t) < self.params.push_hold)
+        if landing:
+            self.push = 0.0
+        elif tau_f > 0.0 and self._cd_prev is not None:
             raw = (cdx - self._cd_prev) / self.dt - self._a_plan
             self.push += min(self.dt / tau_f, 1.0) * (raw - self.push)
         self._cd_prev = cdx
@@ -391,6 +405,7 @@ class SteppingController:
         self.stance = self.support_feet
         self._k = 0
         self._violations = 0
+        self._pulling = 0
         self._b_L0 = 0.0
         self.swing_qp = self.swing_qps[sw]
         self.swing_qp.reset(None, None)
@@ -481,13 +496,15 @@ class SteppingController:
         tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.swing_qp.qdd,
                                                    obs.sole_x, lo, hi, self.mu)
         self._violations = self._violations + 1 if code != WRENCH_OK else 0
+        self._pulling = self._pulling + 1 if code == WRENCH_NO_NORMAL_FORCE else 0
         lift = max(obs.points[:, 1].tolist())
         rec.stance_lift = max(rec.stance_lift, lift)
-        if code == WRENCH_NO_NORMAL_FORCE or self._violations * self.dt > WRENCH_VIOLATION_LIMIT:
+        if (self._pulling * self.dt > prm.no_normal_force_limit
+                or self._violations * self.dt > WRENCH_VIOLATION_LIMIT):
             self.lost = f"step_{WRENCH_REASONS[code]}"
         elif lift > prm.stance_lift_limit:
             self.lost = "step_foot_lift"
-        elif t - plan.t0 >= MIN_SWING_FRACTION * plan.duration and self._touching(obs):
+        elif t - plan.t0 >= prm.min_swing_fraction * plan.duration and self._touching(obs):
             self._land(obs, t)
         elif t - plan.t0 > plan.duration + prm.touchdown_timeout:
             self.lost = "step_no_touchdown"
