@@ -91,6 +91,8 @@ def main() -> None:
     g.add_argument("--forces", type=float, nargs=3, default=[100.0, 700.0, 50.0],
                    metavar=("FIRST", "LAST", "STEP"))
     g.add_argument("--body", default="pelvis")
+    g.add_argument("--modes", nargs="+", choices=("fixed", "stepping"),
+                   default=["fixed", "stepping"], help="which controllers to run")
     for sp in (c, g):
         sp.add_argument("--delay", type=float, default=None,
                         help="the step controller's response_delay (s; default its own, 0)")
@@ -117,7 +119,7 @@ def main() -> None:
     rows = []
     for dur in args.durations:
         for direction in ("forward", "backward"):
-            for stepping in (False, True):
+            for stepping in [m == "stepping" for m in args.modes]:
                 survived, steps = [], {}
                 for f in forces:
                     out, _ = run_case(f, dur, direction, stepping, args.body, params,
