@@ -152,6 +152,9 @@ class StepRecord:
     replans: list[tuple[float, float, float]] = field(default_factory=list)
     #: (t, landing x, capture point at touch-down) of every re-plan
     stance_lift: float = 0.0  # m, the highest stance heel or toe during the swing
+    push_estimate: float = 0.0  # m/s^2, the push estimate at lift-off
+    c0: tuple[float, float] = (0.0, 0.0)  # m, the CM at lift-off
+    cd0: tuple[float, float] = (0.0, 0.0)  # m/s, its velocity
 
 
 class _Reference:
@@ -399,7 +402,10 @@ class SteppingController:
                          push=self._push_for_plan())
         self._plant = [(body_point(alpha, p, int(a.feet[f]), a.sole_local[f]),
                         float(alpha[int(a.feet[f])])) for f in self.support_feet]
-        self.steps.append(StepRecord(self._detected, t, direction, plan))
+        self.steps.append(StepRecord(self._detected, t, direction, plan,
+                                     push_estimate=self._push_for_plan(),
+                                     c0=(float(obs.c[0]), float(obs.c[1])),
+                                     cd0=(float(obs.cd[0]), float(obs.cd[1]))))
         self._plan = plan
         self.phase = "swing"
         self.stance = self.support_feet
