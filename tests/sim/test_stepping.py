@@ -234,6 +234,20 @@ def test_spec_switches_stepping_on():
         sim.close()
 
 
+def test_spec_feet_fixed_gains_reach_the_feet_fixed_phase_only():
+    spec = _spec(True)
+    spec["controller"]["feet_fixed"] = {"cop_box": 0.005, "d_l": 20.0}
+    sim = Rollout(parse_spec(spec))
+    try:
+        ctl = sim.controller
+        assert ctl.params.feet_fixed_gains == (("cop_box", 0.005), ("d_l", 20.0))
+        fixed = ctl.feet_fixed.schedule.base
+        assert (fixed.cop_box, fixed.d_l) == (0.005, 20.0)
+        assert ctl.schedule.base.d_l == 7.0 and ctl.swing_qps[1].schedule.base.d_l == 7.0
+    finally:
+        sim.close()
+
+
 def test_push_the_feet_fixed_controller_loses_is_survived_with_one_step(stepped):
     fixed = Rollout(parse_spec(_spec(False)))
     try:
