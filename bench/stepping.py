@@ -31,25 +31,28 @@ DECAY = 2.5  # s after the push
 
 
 def push_spec(force: float, duration: float, direction: str, body: str,
-              stepping: bool) -> dict:
+              stepping: bool, gains: dict | None = None) -> dict:
     return {"name": "step_push", "clip": {"preparation": PUSH_START, "duration": duration,
                                           "decay": DECAY},
             "task": {"type": "push", "force": force, "direction": direction, "body": body},
-            "controller": {"type": "momentum", "stepping": stepping}}
+            "controller": {"type": "momentum", "stepping": stepping, **(gains or {})}}
 
 
 def rollout(force: float, duration: float, direction: str, stepping: bool, body: str,
-            params: SteppingParams | None = None) -> Rollout:
-    sim = Rollout(parse_spec(push_spec(force, duration, direction, body, stepping)))
+            params: SteppingParams | None = None, gains: dict | None = None) -> Rollout:
+    """One push clip; `gains` (feet fixed only): momentum overrides in the spec."""
+    sim = Rollout(parse_spec(push_spec(force, duration, direction, body, stepping,
+                                       None if stepping else gains)))
     if stepping and params is not None:
-        sim.controller = SteppingController(sim.character, sim.controller.feet_fixed.schedule,
+        sim.controller = SteppingController(sim.character, sim.controller.schedule,
                                             sim.trajectory, sim.arrays, dt=DT, mu=FRICTION_MU,
                                             params=params)
     return sim
 
 
-def run_case(force, duration, direction, stepping, body, params=None, traces=False):
-    sim = rollout(force, duration, direction, stepping, body, params)
+def run_case(force, duration, direction, stepping, body, params=None, traces=False,
+             gains=None):
+    sim = rollout(force, duration, direction, stepping, body, params, gains)
     try:
         ev = sim.run(None, traces=traces)
     finally:
@@ -67,6 +70,7 @@ def run_case(force, duration, direction, stepping, body, params=None, traces=Fal
                 "planned_length": r.plan.land[0] - r.plan.start[0], "length": r.length,
                 "capture_point_at_land": r.plan.capture_at_land,
                 "solves": len(r.solves), "zmp_inside": sum(inside),
+                "stance_lift": r.stance_lift,
                 "ik_max_error": max((e for _t, e in r.ik_error), default=math.nan)})
         out["steps"] = steps
         out["phase"] = sim.controller.phase
@@ -87,14 +91,27 @@ def main() -> None:
     g.add_argument("--forces", type=float, nargs=3, default=[100.0, 700.0, 50.0],
                    metavar=("FIRST", "LAST", "STEP"))
     g.add_argument("--body", default="pelvis")
+    g.add_argument("--modes", nargs="+", choices=("fixed", "stepping"),
+                   default=["fixed", "stepping"], help="which controllers to run")
     for sp in (c, g):
         sp.add_argument("--delay", type=float, default=None,
                         help="the step controller's response_delay (s; default its own, 0)")
+        sp.add_argument("--fixed-gains", default=None, metavar="JSON",
+                        help="feet-fixed gains as JSON, e.g. "
+                             '\'{"cop_box": 0.005, "d_l": 20}\': the spec\'s controller '
+                             "overrides without stepping, the step controller's "
+                             "feet_fixed_gains with it")
     args = ap.parse_args()
-    params = None if args.delay is None else SteppingParams(response_delay=args.delay)
+    gains = json.loads(args.fixed_gains) if args.fixed_gains else None
+    step_kw = {}
+    if args.delay is not None:
+        step_kw["response_delay"] = args.delay
+    if gains:
+        step_kw["feet_fixed_gains"] = tuple(sorted(gains.items()))
+    params = SteppingParams(**step_kw) if step_kw else None
     if args.cmd == "case":
         out, _ = run_case(args.force, args.duration, "backward" if args.backward else "forward",
-                          args.stepping, args.body, params)
+                          args.stepping, args.body, params, gains=gains)
         print(json.dumps(out, indent=1))
         return
     first, last, step = args.forces
@@ -102,10 +119,11 @@ def main() -> None:
     rows = []
     for dur in args.durations:
         for direction in ("forward", "backward"):
-            for stepping in (False, True):
+            for stepping in [m == "stepping" for m in args.modes]:
                 survived, steps = [], {}
                 for f in forces:
-                    out, _ = run_case(f, dur, direction, stepping, args.body, params)
+                    out, _ = run_case(f, dur, direction, stepping, args.body, params,
+                                      gains=gains)
                     if not out["fell"]:
                         survived.append(f)
                         steps[f] = [(round(r["lift_off"], 3), r["touchdown"] and

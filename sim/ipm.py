@@ -43,13 +43,16 @@ def step_direction(xi: float, support: tuple[float, float], margin: float) -> in
 
 @dataclass(frozen=True)
 class PendulumPath:
-    """The IPM's CM path from a start time: samples every IPM_DT (times relative to t0)."""
+    """The IPM's CM path from a start time: samples every IPM_DT (times relative to t0).
+    `push` (m/s^2) is a constant horizontal acceleration of the mass from outside (an
+    estimated push; 0: the plain pendulum)."""
 
     t0: float
     pivot: float
     length: float
     theta: np.ndarray
     theta_d: np.ndarray
+    push: float = 0.0
 
     def state(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(CM position, velocity, acceleration), each (2,), at time t (clamped to the path)."""
@@ -60,7 +63,7 @@ class PendulumPath:
         w = (1 - f) * self.theta_d[k] + f * self.theta_d[k + 1]
         lg = self.length
         s, co = math.sin(th), math.cos(th)
-        wd = GRAVITY / lg * s
+        wd = GRAVITY / lg * s + (self.push * co / lg if self.push else 0.0)
         pos = np.array([self.pivot + lg * s, lg * co])
         vel = np.array([lg * co * w, -lg * s * w])
         acc = np.array([lg * (co * wd - s * w * w), -lg * (s * wd + co * w * w)])
@@ -72,10 +75,11 @@ class PendulumPath:
 
 
 def pendulum_path(c: np.ndarray, cd: np.ndarray, pivot: float, duration: float,
-                  t0: float = 0.0) -> PendulumPath:
+                  t0: float = 0.0, push: float = 0.0) -> PendulumPath:
     """Integrate the IPM from the CM state (c, cd) about the ground point x = pivot for
     `duration` s. The leg length is |c - pivot|; the initial lean rate is the CM velocity's
-    component across the leg divided by it."""
+    component across the leg divided by it. `push` (m/s^2): a constant horizontal
+    acceleration from outside, theta'' = (g sin theta + push cos theta) / l."""
     dx, dy = float(c[0] - pivot), float(c[1])
     lg = math.hypot(dx, dy)
     th = math.atan2(dx, dy)
@@ -85,16 +89,21 @@ def pendulum_path(c: np.ndarray, cd: np.ndarray, pivot: float, duration: float,
     rates = np.empty(n + 1)
     thetas[0], rates[0] = th, w
     k = GRAVITY / lg
+    kp = push / lg
     h = IPM_DT
+
+    def acc(x: float) -> float:
+        return k * math.sin(x) + kp * math.cos(x) if kp else k * math.sin(x)
+
     for i in range(n):
-        a1 = k * math.sin(th)
-        a2 = k * math.sin(th + 0.5 * h * w)
-        a3 = k * math.sin(th + 0.5 * h * (w + 0.5 * h * a1))
-        a4 = k * math.sin(th + h * (w + 0.5 * h * a2))
+        a1 = acc(th)
+        a2 = acc(th + 0.5 * h * w)
+        a3 = acc(th + 0.5 * h * (w + 0.5 * h * a1))
+        a4 = acc(th + h * (w + 0.5 * h * a2))
         th, w = (th + h * (w + h * (a1 + a2 + a3) / 6.0),
                  w + h * (a1 + 2.0 * a2 + 2.0 * a3 + a4) / 6.0)
         thetas[i + 1], rates[i + 1] = th, w
-    return PendulumPath(t0, pivot, lg, thetas, rates)
+    return PendulumPath(t0, pivot, lg, thetas, rates, push)
 
 
 @dataclass(frozen=True)
@@ -128,33 +137,47 @@ class StepPlan:
 def plan_step(t0: float, c: np.ndarray, cd: np.ndarray, pivot: float,
               swing_start: tuple[float, float], direction: int, duration: float,
               clearance: float, max_step: float, land_depth: float = 0.01,
-              capture_offset: float = 0.0) -> StepPlan:
+              capture_offset: float = 0.0, reach_from: float | None = None,
+              push: float = 0.0) -> StepPlan:
     """Plan a step from the state (c, cd) at t0 with the CoP held at `pivot`: the IPM gives the
     CM at touch-down (t0 + duration) and its capture point there; the swing foot's sole centre
     lands `capture_offset` (m, along `direction`) short of that point, so the capture point lies
-    over the new foot, at most `max_step` (m) from where the foot started. `land_depth` (m): the
-    foot is aimed this far below the ground so that it makes contact."""
-    path = pendulum_path(c, cd, pivot, duration, t0)
+    over the new foot, at most `max_step` (m) from `reach_from` (x of the stance foot's sole
+    centre: the leg's reach; None: from where the swing foot started) and never behind where it
+    started. `land_depth` (m): the foot is aimed this far below the ground so that it makes
+    contact. `push` (m/s^2): an estimated horizontal acceleration from outside, held over the
+    swing (`pendulum_path`)."""
+    path = pendulum_path(c, cd, pivot, duration, t0, push)
     pos, vel, _acc = path.state(t0 + duration)
     xi = capture_point(pos, vel)
-    x_land = xi - direction * capture_offset
-    step = min(max(direction * (x_land - swing_start[0]), 0.0), max_step)
-    x_land = swing_start[0] + direction * step
+    x_land = _landing(xi - direction * capture_offset, swing_start[0], direction, max_step,
+                      reach_from)
     return StepPlan(t0, duration, direction, path, (float(swing_start[0]), float(swing_start[1])),
                     (float(x_land), -land_depth), clearance, xi)
 
 
+def _landing(x_goal: float, start: float, direction: int, max_step: float,
+             reach_from: float | None) -> float:
+    """x_goal limited to at most max_step beyond `reach_from` (or `start` when None) along
+    `direction`, and never behind `start`."""
+    base = start if reach_from is None else reach_from
+    x = base + direction * min(direction * (x_goal - base), max_step)
+    return start + direction * max(direction * (x - start), 0.0)
+
+
 def replan_step(plan: StepPlan, t: float, c: np.ndarray, cd: np.ndarray, max_step: float,
-                capture_offset: float = 0.0) -> StepPlan:
+                capture_offset: float = 0.0, reach_from: float | None = None,
+                push: float = 0.0) -> StepPlan:
     """The same step (lift-off, touch-down time, pivot) re-planned from the CM state at t: the
     IPM from (c, cd) over what is left of the swing, and the landing under its new capture point.
     A push still acting when the step started moves the capture point on; re-planning follows it
-    (the controller does not know the force)."""
+    (the controller does not know the force; `push`, m/s^2, is its estimate from the measured
+    CM, held to touch-down). `max_step`, `reach_from`: as in `plan_step`."""
     t_land = plan.t0 + plan.duration
-    path = pendulum_path(c, cd, plan.path.pivot, max(t_land - t, IPM_DT), t)
+    path = pendulum_path(c, cd, plan.path.pivot, max(t_land - t, IPM_DT), t, push)
     pos, vel, _acc = path.state(t_land)
     xi = capture_point(pos, vel)
     d = plan.direction
-    step = min(max(d * (xi - d * capture_offset - plan.start[0]), 0.0), max_step)
+    x_land = _landing(xi - d * capture_offset, plan.start[0], d, max_step, reach_from)
     return StepPlan(plan.t0, plan.duration, d, path, plan.start,
-                    (float(plan.start[0] + d * step), plan.land[1]), plan.clearance, xi)
+                    (float(x_land), plan.land[1]), plan.clearance, xi)

@@ -245,7 +245,9 @@ class TaskSpec(_Strict):
             if b <= a:
                 raise ValueError(f"schedule.{i}: end must be after start")
         room = 0.5 * ch.support_length - MIN_COP_BOX_WIDTH
-        boxes = [("controller.cop_box", getattr(self.controller, "cop_box", None))] + [
+        boxes = [("controller.cop_box", getattr(self.controller, "cop_box", None)),
+                 ("controller.feet_fixed.cop_box",
+                  (getattr(self.controller, "feet_fixed", None) or {}).get("cop_box"))] + [
             (f"schedule.{i}.set.cop_box", s.set.get("cop_box"))
             for i, s in enumerate(self.schedule)]
         for where, v in boxes:

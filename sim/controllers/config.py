@@ -85,7 +85,9 @@ class MomentumConfig(ControllerConfig):
     defaults. `stepping: true` adds the step controller (sim.controllers.stepping): feet
     planted while the capture point stays in the support, one step when it does not;
     `response_delay` (s, default 0; the stepping paper's 0.2 is an option) is how long after
-    the capture point leaves the support the step starts."""
+    the capture point leaves the support the step starts; `feet_fixed` ({gain: value}, only with
+    stepping) overrides gains in the feet-fixed phase before a step only (e.g. `{cop_box: 0.005,
+    d_l: 20}`: 300 N for 0.1 s on the pelvis then needs no step)."""
 
     type: Literal["momentum"] = "momentum"
     stepping: bool = False
@@ -100,6 +102,7 @@ class MomentumConfig(ControllerConfig):
     b_p: _Gain = None
     cop_box: _Gain = None
     response_delay: Annotated[float, Field(ge=0.0, le=1.0)] | None = None
+    feet_fixed: dict[str, Annotated[float, Field(gt=0.0, le=1e4)]] | None = None
 
     schedules_gains: ClassVar[bool] = True
 
@@ -117,6 +120,13 @@ class MomentumConfig(ControllerConfig):
     def _delay_needs_stepping(self) -> MomentumConfig:
         if self.response_delay is not None and not self.stepping:
             raise ValueError("response_delay: applies only with stepping: true")
+        if self.feet_fixed is not None:
+            if not self.stepping:
+                raise ValueError("feet_fixed: applies only with stepping: true")
+            bad = sorted(set(self.feet_fixed) - set(GAIN_NAMES))
+            if bad:
+                raise ValueError(f"feet_fixed: unknown gain {bad[0]!r}; gains are "
+                                 f"{', '.join(GAIN_NAMES)}")
         return self
 
     @model_serializer(mode="wrap")
@@ -142,8 +152,12 @@ class MomentumConfig(ControllerConfig):
         if self.stepping:
             from sim.controllers.stepping import SteppingController, SteppingParams
 
-            step = (SteppingParams() if self.response_delay is None
-                    else SteppingParams(response_delay=self.response_delay))
+            kw: dict[str, Any] = {}
+            if self.response_delay is not None:
+                kw["response_delay"] = self.response_delay
+            if self.feet_fixed:
+                kw["feet_fixed_gains"] = tuple(sorted(self.feet_fixed.items()))
+            step = SteppingParams(**kw)
             return SteppingController(context.character, schedule, context.trajectory,
                                       context.arrays, dt=context.dt, mu=context.mu, params=step)
         return MomentumController(context.character, schedule, context.trajectory,

@@ -69,9 +69,6 @@ TOUCHDOWN_HEIGHT = 0.0005
 #: rad/s: the legs' reference rates (finite differences of two IK postures) are bounded so
 #: that an IK jump near a straight knee cannot command a violent acceleration.
 MAX_REFERENCE_RATE = 15.0
-#: The swing foot cannot land before this fraction of the planned swing (it starts on the
-#: ground).
-MIN_SWING_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -94,16 +91,47 @@ class SteppingParams:
     capture_offset: float = 0.0  # m: the foot lands this far short of the capture point
     touchdown_timeout: float = 0.25  # s after the planned touch-down: then balance is lost
     #: m: the stance foot's heel or toe lifted this high during the swing loses balance (the
-    #: swing model holds the stance foot fixed; a foot rolling over its toe breaks it)
-    stance_lift_limit: float = 0.08
+    #: swing model holds the stance foot fixed while it rolls over its toe: 0.12 m is a
+    #: 27 deg roll of the 0.27 m foot; a follow-up step of a 0.4 s push rolls it 8.1 cm)
+    stance_lift_limit: float = 0.12
     replan: bool = True  # re-plan the landing from the CM state at every swing QP solve
     #: m: after landing, a heel or toe this high loses balance (the rear heel of a long step
     #: rises as the CM passes over the front foot)
     landed_lift_limit: float = FOOT_LIFT_LIMIT
     swing_qp_period: float = 0.005  # s between the swing QP solves (feet-fixed: 1/60 s)
-    max_steps: int = 3  # steps in one clip (the first and the follow-ups)
+    #: The swing foot cannot land before this fraction of the planned swing (it starts on the
+    #: ground)
+    min_swing_fraction: float = 0.5
+    #: s: the swing's support wrench may need a pulling ground this long before balance is
+    #: lost (feet fixed: at once); a swing foot scuffing the ground (contacts the swing
+    #: model does not have) gives such transients of a few ms
+    no_normal_force_limit: float = 0.03
+    #: steps in one clip (the first and the follow-ups): a 300 N / 0.4 s push forward takes
+    #: four (three long ones and one to settle)
+    max_steps: int = 6
     landed_cop_margin: float = 0.02  # m, the CoP constraint of the QP after landing (0: off)
     settle_time: float = 0.3  # s, the legs' reference goes from touch-down to the held posture
+    #: True: the longest step (`max_step_fraction`) is measured from the stance foot's sole
+    #: centre (the leg's reach), so a follow-up step may pass the stance foot; False: from
+    #: where the swing foot lifted (the first step, feet side by side, is the same either way)
+    reach_from_stance: bool = True
+    #: s, time constant of the push estimate: the measured CM acceleration minus the one the
+    #: controller's plan gives it (the push is not known to the controller), held over the rest
+    #: of the swing by the landing's IPM (0: no estimate, the plain IPM)
+    push_filter: float = 0.02
+    #: s after touch-down during which the estimate is held at 0: the landing's impact is
+    #: not a push
+    push_hold: float = 0.05
+    #: True: after landing, a capture point beyond the wider support by more than
+    #: `landed_capture_margin` starts the next step at once (`landed_min_time` after
+    #: touch-down) instead of waiting for the feet-fixed controller's failure
+    landed_capture_step: bool = True
+    landed_capture_margin: float = 0.05  # m
+    landed_min_time: float = 0.02  # s
+    #: Gains of the feet-fixed phase before a step over the spec's, e.g. (("cop_box", 0.005),
+    #: ("d_l", 20.0)): the 300 N / 0.1 s push then needs no step; the step and the landed
+    #: controller keep the spec's gains (docs/physics.md, "Stepping"). Default: none.
+    feet_fixed_gains: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass
@@ -123,6 +151,10 @@ class StepRecord:
     #: (t, |swing sole of the IK posture - planned position| m) per swing QP solve
     replans: list[tuple[float, float, float]] = field(default_factory=list)
     #: (t, landing x, capture point at touch-down) of every re-plan
+    stance_lift: float = 0.0  # m, the highest stance heel or toe during the swing
+    push_estimate: float = 0.0  # m/s^2, the push estimate at lift-off
+    c0: tuple[float, float] = (0.0, 0.0)  # m, the CM at lift-off
+    cd0: tuple[float, float] = (0.0, 0.0)  # m/s, its velocity
 
 
 class _Reference:
@@ -213,7 +245,11 @@ class SteppingController:
         top = self.legs[self.swing][0] + 1  # the body below the leg's first hinge
         sole0 = 0.5 * (ch.heel0[self.swing] + ch.toe0[self.swing])
         self.leg_length = float(np.hypot(*(ch.anchor0[top] - sole0)))
-        self.feet_fixed = MomentumController(ch, schedule, trajectory, self.arrays, dt, mu)
+        self.schedule = schedule  # the spec's gains
+        fixed = (GainScheduler(replace(schedule.base, **dict(self.params.feet_fixed_gains)),
+                               schedule.entries)
+                 if self.params.feet_fixed_gains else schedule)
+        self.feet_fixed = MomentumController(ch, fixed, trajectory, self.arrays, dt, mu)
         self.qp_every = max(1, int(round(self.params.swing_qp_period / dt)))
         base = schedule.base
         self._ref = _Reference(ch.n_hinges)
@@ -258,27 +294,65 @@ class SteppingController:
         self._k = 0
         self._violations = 0
         self._plant: list[tuple[np.ndarray, float]] = []
+        self.push = 0.0  # m/s^2, the estimated horizontal CM acceleration from outside
+        self._cd_prev: float | None = None
+        self._a_plan = 0.0  # m/s^2, the CM acceleration the last step's plan gave
+        self._reach: float | None = None
 
     def act(self, obs: Observation, t: float) -> np.ndarray:
         """Hinge torques for this step (see the module doc for the phases)."""
+        self._observe_push(obs, t)
         if self.phase in ("feet_fixed", "pending"):
-            return self._feet_fixed(obs, t)
+            tau = self._feet_fixed(obs, t)
+            self._planned_accel(obs, self.feet_fixed.qdd, 0.0)
+            return tau
         if self.phase == "swing":
-            return self._swing(obs, t)
+            tau = self._swing(obs, t)
+            self._planned_accel(obs, self.swing_qp.qdd, self._b_L0)
+            return tau
         tau = self.landed_qp.act(obs, t)
+        self._planned_accel(obs, self.landed_qp.qdd, 0.0)
         self.c_ref = self.landed_qp.c_ref
-        if self.landed_qp.lost is not None:
+        prm = self.params
+        xi = capture_point(obs.c, obs.cd)
+        d_cp = step_direction(xi, obs.support, prm.landed_capture_margin)
+        early = (prm.landed_capture_step and d_cp != 0
+                 and t - (self.steps[-1].touchdown or t) >= prm.landed_min_time)
+        if self.landed_qp.lost is not None or early:
             # The feet-fixed balance over the wider support fails (typically the rear heel
-            # lifts as the CM runs on over the front foot): bring the foot left behind
-            # forward (or, stepping back, the front foot back) under the capture point.
-            xi = capture_point(obs.c, obs.cd)
-            d = 1 if xi >= 0.5 * sum(obs.support) else -1
-            if len(self.steps) < self.params.max_steps:
+            # lifts as the CM runs on over the front foot), or the capture point is already
+            # beyond it: bring the foot left behind forward (or, stepping back, the front
+            # foot back) under the capture point.
+            d = d_cp if d_cp != 0 else (1 if xi >= 0.5 * sum(obs.support) else -1)
+            if len(self.steps) < prm.max_steps:
                 swing = int(np.argmin(d * np.asarray(obs.sole_x)))
+                self._detected = t
                 self._start_step(obs, t, d, swing)
-            else:
+            elif self.landed_qp.lost is not None:
                 self.lost = self.landed_qp.lost
         return tau
+
+    def _observe_push(self, obs: Observation, t: float) -> None:
+        """Update the push estimate: the measured CM acceleration (a finite difference of the
+        CM velocity over one step) minus the one the controller's last plan gave it, low-passed
+        over `push_filter` s, and held at 0 for `push_hold` s after a touch-down. Only the
+        measured state enters: the force is unknown here."""
+        tau_f = self.params.push_filter
+        cdx = float(obs.cd[0])
+        landing = (self.phase == "landed" and self.steps
+                   and t - (self.steps[-1].touchdown or t) < self.params.push_hold)
+        if landing:
+            self.push = 0.0
+        elif tau_f > 0.0 and self._cd_prev is not None:
+            raw = (cdx - self._cd_prev) / self.dt - self._a_plan
+            self.push += min(self.dt / tau_f, 1.0) * (raw - self.push)
+        self._cd_prev = cdx
+
+    def _planned_accel(self, obs: Observation, qdd: np.ndarray, b_L0: float) -> None:
+        """The horizontal CM acceleration (m/s^2) the active QP's qdd gives (b_L0: its
+        velocity-product term when known)."""
+        if self.params.push_filter > 0.0:
+            self._a_plan = (float(obs.A_L[0] @ qdd) + b_L0) / self.character.total_mass
 
     # ---- phases ---------------------------------------------------------------------------
     def _feet_fixed(self, obs: Observation, t: float) -> np.ndarray:
@@ -316,21 +390,36 @@ class SteppingController:
         # The IPM pivots where the CoP will be: under the capture point as far as the stance
         # foot reaches (its toe or heel edge when the capture point is beyond it).
         pivot = min(max(capture_point(obs.c, obs.cd), lo + prm.cop_margin), hi - prm.cop_margin)
+        # The leg's reach is measured from the stance foot furthest along the step.
+        self._reach = (direction * max(direction * float(body_point(alpha, p, int(a.feet[f]),
+                                                                    a.sole_local[f])[0])
+                                       for f in self.support_feet)
+                       if prm.reach_from_stance else None)
         plan = plan_step(t, obs.c, obs.cd, pivot, (float(sole[0]), float(sole[1])), direction,
                          prm.step_duration, prm.clearance,
                          prm.max_step_fraction * self.leg_length,
-                         capture_offset=prm.capture_offset)
+                         capture_offset=prm.capture_offset, reach_from=self._reach,
+                         push=self._push_for_plan())
         self._plant = [(body_point(alpha, p, int(a.feet[f]), a.sole_local[f]),
                         float(alpha[int(a.feet[f])])) for f in self.support_feet]
-        self.steps.append(StepRecord(self._detected, t, direction, plan))
+        self.steps.append(StepRecord(self._detected, t, direction, plan,
+                                     push_estimate=self._push_for_plan(),
+                                     c0=(float(obs.c[0]), float(obs.c[1])),
+                                     cd0=(float(obs.cd[0]), float(obs.cd[1]))))
         self._plan = plan
         self.phase = "swing"
         self.stance = self.support_feet
         self._k = 0
         self._violations = 0
+        self._pulling = 0
+        self._b_L0 = 0.0
         self.swing_qp = self.swing_qps[sw]
         self.swing_qp.reset(None, None)
         self.swing_qp.p_des = pivot
+
+    def _push_for_plan(self) -> float:
+        """The push estimate the landing's IPM holds (m/s^2; 0 with the estimate off)."""
+        return self.push if self.params.push_filter > 0.0 else 0.0
 
     def _targets(self, t: float) -> list[Target]:
         """IK targets of the swing at time t: stance feet where they were planted, flat; the
@@ -362,7 +451,8 @@ class SteppingController:
             if self._k > 0 and prm.replan:
                 self._plan = replan_step(self._plan, t, obs.c, obs.cd,
                                          prm.max_step_fraction * self.leg_length,
-                                         prm.capture_offset)
+                                         prm.capture_offset, self._reach,
+                                         self._push_for_plan())
                 rec.replans.append((t, self._plan.land[0], self._plan.capture_at_land))
             plan = self._plan
             h = self.qp_every * self.dt
@@ -392,12 +482,14 @@ class SteppingController:
                              + (prm.swing_damping - sp.d_t) * (qd_r[sw_leg] - hqd[sw_leg]))
             self._ref.value = (q_r, qd_r, qdd_r)
             pos, vel, acc = plan.path.state(t)
-            self.swing_qp.accel = acc
+            # The ground supplies the IPM's acceleration less the push's.
+            self.swing_qp.accel = acc - np.array([plan.path.push, 0.0])
             self.c_ref = (float(pos[0]), 0.0)
             bias = stance_bias(a, obs)
             qdd = self.swing_qp.solve(t, obs.q, obs.qd, obs.c, obs.cd, obs.A_L, obs.A_H, obs.Js,
                                       (lo, hi), self.c_ref, (float(vel[0]), 0.0), lambda: bias)
             b_L, b_H, _b_S = bias
+            self._b_L0 = float(b_L[0])
             m = self.character.total_mass
             fxg = float(obs.A_L[0] @ qdd + b_L[0])
             fyg = float(obs.A_L[1] @ qdd + b_L[1] + m * GRAVITY)
@@ -410,11 +502,15 @@ class SteppingController:
         tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.swing_qp.qdd,
                                                    obs.sole_x, lo, hi, self.mu)
         self._violations = self._violations + 1 if code != WRENCH_OK else 0
-        if code == WRENCH_NO_NORMAL_FORCE or self._violations * self.dt > WRENCH_VIOLATION_LIMIT:
+        self._pulling = self._pulling + 1 if code == WRENCH_NO_NORMAL_FORCE else 0
+        lift = max(obs.points[:, 1].tolist())
+        rec.stance_lift = max(rec.stance_lift, lift)
+        if (self._pulling * self.dt > prm.no_normal_force_limit
+                or self._violations * self.dt > WRENCH_VIOLATION_LIMIT):
             self.lost = f"step_{WRENCH_REASONS[code]}"
-        elif max(obs.points[:, 1].tolist()) > prm.stance_lift_limit:
+        elif lift > prm.stance_lift_limit:
             self.lost = "step_foot_lift"
-        elif t - plan.t0 >= MIN_SWING_FRACTION * plan.duration and self._touching(obs):
+        elif t - plan.t0 >= prm.min_swing_fraction * plan.duration and self._touching(obs):
             self._land(obs, t)
         elif t - plan.t0 > plan.duration + prm.touchdown_timeout:
             self.lost = "step_no_touchdown"

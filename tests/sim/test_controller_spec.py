@@ -60,6 +60,12 @@ def test_no_controller_and_empty_dict_are_the_default_momentum():
     ({"type": "momentum", "stepping": True, "response_delay": -0.1},
      "controller.response_delay", "greater than or equal to 0"),
     ({"cop_box": 10000.0}, "controller.cop_box", "below half the support length"),
+    ({"type": "momentum", "feet_fixed": {"d_l": 20.0}}, "controller",
+     "feet_fixed: applies only with stepping: true"),
+    ({"type": "momentum", "stepping": True, "feet_fixed": {"dl": 20.0}}, "controller",
+     "feet_fixed: unknown gain 'dl'"),
+    ({"type": "momentum", "stepping": True, "feet_fixed": {"cop_box": 1.0}},
+     "controller.feet_fixed.cop_box", "below half the support length"),
 ])
 def test_bad_controller_block_names_field_and_rule(block, field, rule):
     with pytest.raises(SpecError) as info:
