@@ -20,7 +20,10 @@ simulated second, `sim.bench.run_task_bench`) for each Table 1 task's world.
     simulated second / 2, i.e. a zero-cost controller and perfect parallelism, at the paper's
     N read two ways: N evaluations (what C supports: the paper's runs were single threaded at
     ~0.5 CPU s per simulated second) and N iterations of our popsize (what issue 10 says);
-  * from the seeded log: evaluations and wall seconds until the first candidate that stands
+  * from the seeded log: evaluations and wall seconds (and "idle": the simulated seconds of
+    the generations up to it x the idle full-controller rate / 2 cores, no pool start-up or
+    straggler time, so a lower estimate of an idle machine's wall) until the first candidate
+    that stands
     and succeeds at its task, until the best is within 5 % and 1 % of the log's final best,
     and where scale-free stop rules (relative improvement over a window of generations) would
     have stopped, replayed exactly on the logged best-so-far (the rules read nothing else).
@@ -174,10 +177,13 @@ def _first(gens: list[dict[str, Any]], pred: Any) -> dict[str, Any] | None:
     """The first generation (with the evaluations counted up to the candidate) where `pred`
     holds for a candidate: {"evaluations", "wall"} (wall at the generation's end)."""
     before = 0
+    sim = 0.0
     for g in gens:
+        sim += sum(c[3] for c in g["candidates"])
         for i, c in enumerate(g["candidates"]):
             if pred(c):
-                return {"evaluations": before + i + 1, "wall": g["wall"], "value": c[0]}
+                return {"evaluations": before + i + 1, "wall": g["wall"], "value": c[0],
+                        "generation_evaluations": g["evaluations"], "sim_seconds": sim}
         before = g["evaluations"]
     return None
 
@@ -195,8 +201,9 @@ def replay_rule(gens: list[dict[str, Any]], window: int, improvement: float,
     if hit is None:
         return None
     g = gens[hit[0]]
+    sim = sum(c[3] for h in gens[:hit[0] + 1] for c in h["candidates"])
     return {"evaluations": g["evaluations"], "wall": g["wall"], "cpu": g["cpu"],
-            "best": g["best_so_far"]}
+            "best": g["best_so_far"], "sim_seconds": sim}
 
 
 def analyse_log(log: dict[str, Any]) -> dict[str, Any]:
@@ -332,8 +339,13 @@ def table(args: argparse.Namespace) -> int:
         if not lg:
             continue
 
-        def f(m: dict[str, Any] | None) -> str:
-            return "not in log" if m is None else f"{m['evaluations']} ev, {m['wall']:.0f} s"
+        full = r.get("full")
+
+        def f(m: dict[str, Any] | None, full: float | None = full) -> str:
+            if m is None:
+                return "not in log"
+            idle = "" if full is None else f", idle {m['sim_seconds'] * full / CORES:.1f} s"
+            return f"{m['evaluations']} ev, {m['wall']:.0f} s{idle}"
 
         print(f"{r['task']} ({lg['name']}, seed {lg['seed']}, load {lg['load']}): "
               f"{lg['evaluations']} evaluations in {lg['wall']:.0f} s wall, {lg['cpu']:.0f} s "
@@ -345,7 +357,7 @@ def table(args: argparse.Namespace) -> int:
               f"{f(lg['paper_delta_reached'])}")
         for k, m in lg["rules"].items():
             print(f"  rule {k}: " + ("does not fire in the log" if m is None else
-                  f"{m['evaluations']} ev, {m['wall']:.0f} s, best {m['best']:.4f} "
+                  f"{f(m)}, best {m['best']:.4f} "
                   f"(+{100 * (m['best'] / lg['final_best'] - 1):.1f} % over the log's)"))
     return 0
 
