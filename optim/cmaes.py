@@ -89,6 +89,38 @@ class StopRules:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def slow(self, best_so_far: Sequence[float], evaluations: int) -> bool:
+        """The slow-convergence rule after a generation: `best_so_far` is the run's best so
+        far after each generation up to this one (oldest first; only the last `window` + 1
+        are read), `evaluations` the count after it (see the module docstring)."""
+        if evaluations < self.min_evaluations or len(best_so_far) <= self.window:
+            return False
+        then = best_so_far[-1 - self.window]
+        now = best_so_far[-1]
+        return (then - now) / max(abs(then), 1e-300) < self.improvement
+
+    def first_stop(
+        self, history: Sequence[GenerationStats | dict[str, Any]]
+    ) -> tuple[int, str] | None:
+        """Where these rules would have stopped a run with this history: (index of the last
+        generation run, rule name), or None if none fires within it. Exact for the threshold,
+        the cap and slow convergence (they read only the best so far and the evaluation
+        count, as `CmaOptimizer.stop` does); pycma's own terminations are not replayed.
+        A history from a run with other rules is a valid input: the rules do not change the
+        search, only where it ends."""
+        best: list[float] = []
+        for i, h in enumerate(history):
+            d = h if isinstance(h, dict) else h.to_dict()
+            best.append(float(d["best_so_far"]))
+            evaluations = int(d["evaluations"])
+            if self.threshold is not None and best[-1] <= self.threshold:
+                return i, "threshold"
+            if evaluations >= self.max_evaluations:
+                return i, "max_evaluations"
+            if self.slow(best, evaluations):
+                return i, "slow_convergence"
+        return None
+
 
 @dataclass(frozen=True)
 class GenerationStats:
@@ -295,12 +327,8 @@ class CmaOptimizer:
             return "threshold"
         if s.evaluations >= r.max_evaluations:
             return "max_evaluations"
-        if s.evaluations >= r.min_evaluations and len(s.history) > r.window:
-            then = s.history[-1 - r.window].best_so_far
-            now = s.best_f
-            rel = (then - now) / max(abs(then), 1e-300)
-            if rel < r.improvement:
-                return "slow_convergence"
+        if r.slow([h.best_so_far for h in s.history[-1 - r.window:]], s.evaluations):
+            return "slow_convergence"
         own = s.es.stop()
         if own:
             return "cma:" + str(next(iter(own)))

@@ -47,6 +47,29 @@ def test_slow_convergence_waits_for_min_evaluations():
     assert 700 <= opt.evaluations < 700 + opt.popsize
 
 
+@pytest.mark.parametrize("rules", [
+    StopRules(min_evaluations=200, window=10, improvement=0.05, max_evaluations=10_000),
+    StopRules(min_evaluations=0, window=3, improvement=0.2, max_evaluations=10_000),
+    StopRules(threshold=0.05, min_evaluations=10**6, max_evaluations=10_000),
+    StopRules(min_evaluations=10**6, max_evaluations=95),
+])
+def test_first_stop_replays_the_rules_on_a_longer_run(rules):
+    """The rules read only the history, so replayed on a longer run of the same seed they
+    stop where a run under them stopped (bench/table1.py relies on it)."""
+    fn = NoisyFlat(amplitude=0.01) if rules.threshold is None else Sphere(centre=0.4)
+    ruled = CmaOptimizer(8, seed=5, popsize=10, rules=rules)
+    reason = drive(ruled, fn)
+    assert reason in ("slow_convergence", "threshold", "max_evaluations")
+    free = CmaOptimizer(8, seed=5, popsize=10,
+                        rules=StopRules(min_evaluations=10**6, max_evaluations=10**6))
+    drive(free, fn, max_gens=ruled.iterations + 20)
+    assert free.history[:ruled.iterations] == ruled.history
+    assert rules.first_stop(free.history) == (ruled.iterations - 1, reason)
+    assert rules.first_stop([h.to_dict() for h in free.history]) == (ruled.iterations - 1,
+                                                                       reason)
+    assert rules.first_stop(free.history[:ruled.iterations - 1]) is None
+
+
 def test_max_evaluations_cap():
     rules = StopRules(min_evaluations=10_000, max_evaluations=95)
     opt = CmaOptimizer(8, seed=3, popsize=10, rules=rules)
