@@ -25,6 +25,24 @@ reduced space, so that objectives and evaluation counts are comparable. The pape
    interpolated from the nearest optimised masses on either side (the mass itself excluded),
    simulated at that mass, against the CMRT optimised there.
 Steps 2 and 3 run for whatever members are available; missing ones are reported as missing.
+
+With --continuation up|down the family is a chain, as `bench/bend_family.py --continuation`
+does for the bends and the paper did for its families ("previous optimization results as
+starting points"): the masses in increasing (up) or decreasing (down) order, the first from the
+flat spline under the main rules, each next one warm-started from the previous mass's optimum
+with a small initial step (--warm-sigma) and its own short rules (--warm-window generations at
+--warm-improvement, at most --warm-max-evaluations; no minimum), so neighbours stay on one
+branch of optima and each member is cheap. The chain is then the family for steps 2 and 3;
+the full-space references of step 2 are separate flat-start runs at the left-out masses under
+the main rules (files full_m*.json), because the chain's members started from a neighbour's
+optimum and their cost says nothing about a cold full-space search. Step 2 then reports three
+speed-ups in evaluations (the paper's is time; a clip costs about the same CPU for every
+candidate of one scene, so evaluations are the proxy): to the stopping rule, to "equal
+quality" (evaluations until each run's best first reached the worse of the two final
+objectives) and to within 1 % of each run's own final best. --reduced-start flat starts the
+reduced run from the flat spline projected into the basis box, i.e. from the full-space run's
+start. --only family / reduced stops before the reduced runs / before running missing
+full-space references (so that these can run in another process into the same --out).
 Prints markdown tables (for docs/benchmarks.md); --json prints the raw numbers instead.
 """
 
@@ -66,18 +84,38 @@ PAPER_TABLE_2 = {
 }
 
 
-def member_spec(mass: float, args: argparse.Namespace) -> TaskSpec:
+def member_spec(mass: float, args: argparse.Namespace, warm: bool = False) -> TaskSpec:
+    """The template with task.mass = `mass` and the family's stopping rules (no threshold);
+    `warm`: the continuation members' rules and initial step (--warm-*)."""
     data = yaml.safe_load(args.template.read_text())
     family = data.get("family") or "domino"
     data["name"] = f"{family}_m{mass:g}"
     data["family"] = family
     data["task"]["mass"] = float(mass)
-    data["optimize"] = {  # no threshold: run to the slow-convergence rule
-        "min_evaluations": args.min_evaluations,
-        "window": args.window,
-        "max_evaluations": args.max_evaluations,
-    }
+    if warm:
+        data["optimize"] = {
+            "min_evaluations": 0,
+            "window": args.warm_window,
+            "improvement": args.warm_improvement,
+            "max_evaluations": args.warm_max_evaluations,
+            "sigma0": args.warm_sigma,
+        }
+    else:
+        data["optimize"] = {  # no threshold: run to the slow-convergence rule
+            "min_evaluations": args.min_evaluations,
+            "window": args.window,
+            "improvement": args.improvement,
+            "max_evaluations": args.max_evaluations,
+        }
     return parse_spec(data, f"domino family mass = {mass:g} kg")
+
+
+def evaluations_to_reach(result: OptimizationResult, target: float) -> int | None:
+    """Evaluations until the run's best-so-far first was <= target (None if never)."""
+    for h in result.history:
+        if h["best_so_far"] <= target:
+            return int(h["evaluations"])
+    return None
 
 
 def run_order(masses: list[float], first: list[float]) -> list[float]:
@@ -98,12 +136,36 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--k", type=int, default=3)
     p.add_argument("--min-evaluations", type=int, default=150)
     p.add_argument("--window", type=int, default=10)
+    p.add_argument("--improvement", type=float, default=0.05)
     p.add_argument("--max-evaluations", type=int, default=300)
+    p.add_argument("--continuation", choices=["up", "down", "updown"],
+                   help="optimise the family as a chain: masses in increasing (up) or "
+                        "decreasing (down) order, the first from the flat spline under the "
+                        "main rules, each next one warm-started from the previous optimum "
+                        "under the --warm-* rules (files cont<dir>_s<S>_m*.json); updown: "
+                        "an up chain over the masses <= --split and a down chain over the "
+                        "rest, from the flat spline at the lightest and the heaviest mass")
+    p.add_argument("--split", type=float, default=90.0,
+                   help="with --continuation updown: the heaviest mass of the up chain (kg)")
+    p.add_argument("--warm-sigma", type=float, default=0.05)
+    p.add_argument("--warm-window", type=int, default=5)
+    p.add_argument("--warm-improvement", type=float, default=0.01)
+    p.add_argument("--warm-max-evaluations", type=int, default=100)
+    p.add_argument("--reduced-start", choices=["centre", "flat"], default="centre",
+                   help="reduced-space start: the box centre (about the family mean) or the "
+                        "flat spline projected into the box (the full-space run's start)")
     p.add_argument("--template", type=Path, default=TEMPLATE)
     p.add_argument("--skip-full", action="store_true",
                    help="do not optimise missing members: use only those saved in --out")
+    p.add_argument("--only", choices=["family", "reduced"], default=None,
+                   help="stop after the family (and interpolation) / after the reduced runs, "
+                        "before the full-space references that are missing")
+    p.add_argument("--no-run", action="store_true",
+                   help="optimise nothing: report what is saved in --out, the rest as missing")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
+    if args.no_run:
+        args.skip_full = True
     args.out.mkdir(parents=True, exist_ok=True)
     log = (lambda *a: print(*a, file=sys.stderr, flush=True)) if args.json else (
         lambda *a: print(*a, flush=True))
@@ -114,55 +176,71 @@ def main(argv: list[str] | None = None) -> int:
     def path(mass: float) -> Path:
         return args.out / f"full_m{mass:g}.json"
 
-    with PoolExecutor(args.workers) as pool:
-        full: dict[float, OptimizationResult] = {}
-        t_start = time.perf_counter()
-        neighbours = [m for v in args.interpolate for m in _around(args.masses, v)]
-        for mass in run_order(args.masses, args.leave_out + args.interpolate + neighbours):
-            if args.skip_full and not path(mass).exists():
-                report["missing"].append(mass)
-                continue
-            log(f"[{time.perf_counter() - t_start:.0f} s] full space, mass {mass:g} kg")
-            full[mass] = run_or_load(path(mass), member_spec(mass, args), pool, args.seed,
-                                     log=log)
-        for mass in sorted(full):
-            r = full[mass]
-            report["members"].append({
-                "mass": mass, "flat": r.baseline_objective, "optimised": r.objective,
-                "fell": r.fell, "evaluations": r.evaluations,
+    def member_row(r: OptimizationResult, mass: float, start: str) -> dict:
+        return {"mass": mass, "start": start, "flat": r.baseline_objective,
+                "optimised": r.objective, "fell": r.fell, "evaluations": r.evaluations,
                 "converged_at": evaluations_to_converge(r), "stop_rule": r.stop_rule,
-                "wall_seconds": r.wall_seconds})
+                "wall_seconds": r.wall_seconds, "params": [round(x, 6) for x in r.params]}
 
-        for mass in args.leave_out:
-            others = [full[m] for m in sorted(full) if m != mass]
-            if mass not in full or len(others) < args.k + 1:
-                report["missing"].append(f"pca {mass:g}")
-                continue
-            basis = build_basis(others, k=args.k)
-            log(f"[{time.perf_counter() - t_start:.0f} s] reduced space (k = {args.k}, "
-                f"{len(others)} members), mass {mass:g} kg")
-            red = run_or_load(args.out / f"reduced_k{args.k}_n{len(others)}_m{mass:g}.json",
-                              member_spec(mass, args), pool, args.seed, basis=basis, log=log)
-            fr = full[mass]
-            report["pca"].append({
-                "mass": mass, "k": args.k, "members": len(others),
-                "variance_explained_k": float(np.sum(basis.variance_explained[: args.k])),
-                "reduced": red.objective, "reduced_fell": red.fell,
-                "reduced_evaluations": red.evaluations,
-                "reduced_converged_at": evaluations_to_converge(red),
-                "reduced_wall_seconds": red.wall_seconds,
-                "full": fr.objective, "full_evaluations": fr.evaluations,
-                "full_converged_at": evaluations_to_converge(fr),
-                "full_wall_seconds": fr.wall_seconds,
-                "relative_error": red.objective / fr.objective - 1.0,
-                "speedup_rule": fr.evaluations / red.evaluations,
-                "speedup_converged": evaluations_to_converge(fr) / evaluations_to_converge(red),
-                "speedup_wall": fr.wall_seconds / red.wall_seconds,
-            })
+    with PoolExecutor(args.workers) as pool:
+        t_start = time.perf_counter()
+        # flat-start full-space runs: every member (no continuation), or the chain's first
+        # member and, later, the PCA references at the left-out masses (continuation)
+        flat: dict[float, OptimizationResult] = {}
+        family: dict[float, OptimizationResult] = {}
+        prefix = f"cont{args.continuation}_s{args.warm_sigma:g}_"
+        if args.continuation == "updown":  # two chains that can run in two processes
+            chains = [("up", sorted(m for m in args.masses if m <= args.split)),
+                      ("down", sorted((m for m in args.masses if m > args.split),
+                                      reverse=True))]
+        elif args.continuation:
+            chains = [(args.continuation,
+                       sorted(args.masses, reverse=args.continuation == "down"))]
+        else:
+            chains = []
+        for direction, chain in chains:
+            chain_prefix = f"cont{direction}_s{args.warm_sigma:g}_"
+            prev, prev_m = None, 0.0
+            for mass in chain:
+                file = path(mass) if prev is None else args.out / f"{chain_prefix}m{mass:g}.json"
+                if args.no_run and not file.exists():
+                    report["missing"].append(f"member {mass:g}")
+                    break  # the rest of the chain descends from this member
+                if prev is None:
+                    log(f"[{time.perf_counter() - t_start:.0f} s] full space (flat start), "
+                        f"mass {mass:g} kg")
+                    flat[mass] = family[mass] = run_or_load(
+                        path(mass), member_spec(mass, args), pool, args.seed, log=log)
+                    start = "flat"
+                else:
+                    log(f"[{time.perf_counter() - t_start:.0f} s] continuation from "
+                        f"{prev_m:g} kg, mass {mass:g} kg")
+                    family[mass] = run_or_load(
+                        file, member_spec(mass, args, True),
+                        pool, args.seed, x0=prev.params, log=log)
+                    start = f"{prev_m:g} kg"
+                report["members"].append(member_row(family[mass], mass, start))
+                prev, prev_m = family[mass], mass
+        if not args.continuation:
+            neighbours = [m for v in args.interpolate for m in _around(args.masses, v)]
+            for mass in run_order(args.masses, args.leave_out + args.interpolate + neighbours):
+                if args.skip_full and not path(mass).exists():
+                    report["missing"].append(mass)
+                    continue
+                log(f"[{time.perf_counter() - t_start:.0f} s] full space, mass {mass:g} kg")
+                flat[mass] = family[mass] = run_or_load(path(mass), member_spec(mass, args),
+                                                        pool, args.seed, log=log)
+            for mass in sorted(family):
+                report["members"].append(member_row(family[mass], mass, "flat"))
+
+        def reference(mass: float) -> OptimizationResult:
+            """The best full-space CMRT optimised at `mass`, whichever start it came from."""
+            runs = [r for r in (family.get(mass), flat.get(mass)) if r is not None]
+            return min(runs, key=lambda r: r.objective)
 
         for mass in args.interpolate:
-            samples = [full[m] for m in sorted(full) if m != mass]
-            if mass not in full:
+            samples = [family[m] for m in sorted(family) if m != mass]
+            if mass not in family:
                 report["missing"].append(f"interpolation {mass:g}")
                 continue
             try:
@@ -173,12 +251,73 @@ def main(argv: list[str] | None = None) -> int:
             spec = member_spec(mass, args)
             out_i, out_flat = pool.map(SimObjective(spec), [interp.params(spec),
                                                             flat_params(spec)])
-            opt = full[mass].objective
+            opt = reference(mass).objective
             report["interpolation"].append({
                 "mass": mass, "between": [interp.lower_value, interp.upper_value],
                 "flat": out_flat.objective, "interpolated": out_i.objective,
-                "interpolated_fell": out_i.fell, "optimised": opt,
-                "excess": out_i.objective / opt - 1.0,
+                "interpolated_fell": out_i.fell,
+                "optimised": opt, "excess": out_i.objective / opt - 1.0,
+            })
+        if args.only == "family":
+            args.leave_out = []
+
+        reduced: dict[float, OptimizationResult] = {}
+        for mass in args.leave_out:
+            others = [family[m] for m in sorted(family) if m != mass]
+            if len(others) < args.k + 1:
+                report["missing"].append(f"pca {mass:g}")
+                continue
+            basis = build_basis(others, k=args.k)
+            spec = member_spec(mass, args)
+            tag = "" if args.reduced_start == "centre" else "flat_"
+            name = (f"reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json"
+                    if not args.continuation else
+                    f"{prefix}reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json")
+            log(f"[{time.perf_counter() - t_start:.0f} s] reduced space (k = {args.k}, "
+                f"{len(others)} members), mass {mass:g} kg")
+            if args.no_run and not (args.out / name).exists():
+                report["missing"].append(f"reduced {mass:g}")
+                continue
+            x0 = flat_params(spec) if args.reduced_start == "flat" else None
+            reduced[mass] = run_or_load(args.out / name, spec, pool, args.seed, basis=basis,
+                                        x0=x0, log=log)
+            reduced[mass].variance_k = float(np.sum(basis.variance_explained[: args.k]))
+            reduced[mass].n_members = len(others)
+
+        for mass, red in reduced.items():
+            if mass not in flat:
+                if args.only == "reduced" or args.skip_full:
+                    report["missing"].append(f"full-space reference {mass:g}")
+                    continue
+                log(f"[{time.perf_counter() - t_start:.0f} s] full space (flat start, PCA "
+                    f"reference), mass {mass:g} kg")
+                flat[mass] = run_or_load(path(mass), member_spec(mass, args), pool,
+                                         args.seed, log=log)
+            fr = flat[mass]
+            # "equal quality": the worse of the two final objectives, reached by both runs
+            quality = max(fr.objective, red.objective)
+            n_full_q = evaluations_to_reach(fr, quality)
+            n_red_q = evaluations_to_reach(red, quality)
+            report["pca"].append({
+                "mass": mass, "k": args.k, "members": red.n_members,
+                "variance_explained_k": red.variance_k,
+                "reduced": red.objective, "reduced_fell": red.fell,
+                "reduced_stop_rule": red.stop_rule,
+                "reduced_evaluations": red.evaluations,
+                "reduced_converged_at": evaluations_to_converge(red),
+                "reduced_to_quality": n_red_q,
+                "reduced_wall_seconds": red.wall_seconds,
+                "full": fr.objective, "full_stop_rule": fr.stop_rule,
+                "full_evaluations": fr.evaluations,
+                "full_converged_at": evaluations_to_converge(fr),
+                "full_to_quality": n_full_q,
+                "full_wall_seconds": fr.wall_seconds,
+                "best_family_member": family[mass].objective if mass in family else None,
+                "relative_error": red.objective / fr.objective - 1.0,
+                "speedup_rule": fr.evaluations / red.evaluations,
+                "speedup_converged": evaluations_to_converge(fr) / evaluations_to_converge(red),
+                "speedup_quality": n_full_q / n_red_q,
+                "speedup_wall": fr.wall_seconds / red.wall_seconds,
             })
 
     if args.json:
@@ -196,28 +335,28 @@ def _around(masses: list[float], value: float) -> list[float]:
 
 
 def _print_tables(report: dict) -> None:
-    print("\n| mass (kg) | no CMRT | optimised | evaluations (converged at) | stop rule | "
-          "wall (s) |")
-    print("|---|---|---|---|---|---|")
+    print("\n| mass (kg) | start | no CMRT | optimised | evaluations (converged at) | "
+          "stop rule | wall (s) |")
+    print("|---|---|---|---|---|---|---|")
     for m in report["members"]:
-        print(f"| {m['mass']:g} | {m['flat']:.3f} | {m['optimised']:.3f}"
+        print(f"| {m['mass']:g} | {m['start']} | {m['flat']:.3f} | {m['optimised']:.3f}"
               f"{' (fell)' if m['fell'] else ''} | {m['evaluations']} ({m['converged_at']}) | "
               f"{m['stop_rule']} | {m['wall_seconds']:.0f} |")
-    print("\n| mass (kg) | var. expl. (k) | reduced: obj (evals, conv. at, wall s) | "
-          "full: obj (evals, conv. at, wall s) | rel. error | speed-up rule / converged / "
-          "wall | paper: rel. error, speed-up |")
+    print("\n| mass (kg) | var. expl. (k, members) | reduced: obj (evals, stop, conv. at) | "
+          "full: obj (evals, stop, conv. at) | rel. error | speed-up rule / equal quality / "
+          "converged | paper: rel. error, speed-up |")
     print("|---|---|---|---|---|---|---|")
     for r in report["pca"]:
         paper = PAPER_TABLE_2.get(int(r["mass"]))
-        ptxt = f"{paper[5]:.1f} %, {paper[4]:.2f}x" if paper else "-"
+        ptxt = f"{paper[5]:+.1f} %, {paper[4]:.2f}x" if paper else "-"
         print(f"| {r['mass']:g} | {r['variance_explained_k']:.1%} ({r['k']}, "
-              f"{r['members']} members) | {r['reduced']:.3f}"
-              f"{' (fell)' if r['reduced_fell'] else ''}"
-              f" ({r['reduced_evaluations']}, {r['reduced_converged_at']}, "
-              f"{r['reduced_wall_seconds']:.0f}) | {r['full']:.3f} ({r['full_evaluations']}, "
-              f"{r['full_converged_at']}, {r['full_wall_seconds']:.0f}) | "
+              f"{r['members']}) | {r['reduced']:.3f}{' (fell)' if r['reduced_fell'] else ''}"
+              f" ({r['reduced_evaluations']}, {r.get('reduced_stop_rule', '')}, "
+              f"{r['reduced_converged_at']}) | {r['full']:.3f} ({r['full_evaluations']}, "
+              f"{r.get('full_stop_rule', '')}, {r['full_converged_at']}) | "
               f"{r['relative_error']:+.1%} | {r['speedup_rule']:.2f}x / "
-              f"{r['speedup_converged']:.2f}x / {r['speedup_wall']:.2f}x | {ptxt} |")
+              f"{r.get('speedup_quality', float('nan')):.2f}x / "
+              f"{r['speedup_converged']:.2f}x | {ptxt} |")
     print("\n| mass (kg) | from (kg) | no CMRT | interpolated | optimised there | "
           "excess (target <= 10 %) |")
     print("|---|---|---|---|---|---|")
