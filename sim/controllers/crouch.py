@@ -3,9 +3,10 @@ posture's CM is `dy` m lower (higher) than the task's own reference posture's.
 
 Why a posture (docs/physics.md, "The vertical CMRT"): the momentum QP tracks every hinge toward
 the task's reference posture, and a lower CM needs the knees and hips to bend away from it. A
-vertical CM target in the linear-momentum objective alone moves the CM only ~10 % of the way
-against the tracking term (measured on the lion: -8 / -15 / -30 cm lowered its head by
-1.2 / 2.3 / 3.8 cm), so a displacement that the tracking term contradicts is not followed. The
+vertical CM target in the linear-momentum objective alone hardly moves the CM against the
+tracking term (measured on the 180 kg character file in quiet stance: -10 / -20 cm asked, 1.6 /
+3.6 mm reached with a force k_l m dy, 2.0 / 4.7 mm with a spring about the standing height),
+so a displacement that the tracking term contradicts is not followed. The
 horizontal CMRT is followed because it costs only the lightly weighted ankles and the free root
 angle; lowering the CM costs the legs' heavily weighted hinges. So here the reference posture
 itself carries the vertical displacement, as the PD servos carry the horizontal one through a

@@ -18,9 +18,10 @@ since a bend lowers the CM and a fixed height target would fight the pose. A CMR
 part dy enters as a posture (`sim.controllers.crouch`): the legs' reference angles bend so that
 the reference posture's CM is dy lower, and the vertical damping is toward the CMRT's vertical
 rate, Ldot_des,y = d_lv (m dy' - L_y). (A vertical CM target in the momentum objective alone
-moves the CM ~10 % of the way against the tracking term: docs/physics.md.) Angular momentum: the desired CoP is the support centre
-(kept COP_MARGIN inside the support) and Hdot_des = (p_des - c_x) F_y + c_y F_x with
-F = Ldot_des - m g, the ground force that places the CoP there.
+moves the CM a few per cent of the way against the tracking term: docs/physics.md.)
+Angular momentum: the desired CoP is the support centre (kept COP_MARGIN inside the support)
+and Hdot_des = (p_des - c_x) F_y + c_y F_x with F = Ldot_des - m g, the ground force that
+places the CoP there.
 
 Optional CoP objective (`b_p` > 0, scheduled into a task window, off by default as in the
 paper): the QP then uses the velocity-product terms of the momentum rates and of the foot
