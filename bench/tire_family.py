@@ -47,10 +47,9 @@ from bend_family import evaluations_to_converge, run_or_load  # noqa: E402
 
 from optim.executors import PoolExecutor  # noqa: E402
 from optim.interpolate import interpolate  # noqa: E402
-from optim.objective import SimObjective  # noqa: E402
 from optim.pca import build_basis  # noqa: E402
 from optim.result import OptimizationResult  # noqa: E402
-from optim.spline import flat_params  # noqa: E402
+from sim.rollout import evaluate  # noqa: E402
 from sim.spec import TaskSpec, parse_spec  # noqa: E402
 
 TEMPLATE = ROOT / "examples" / "lion_hit.yaml"
@@ -158,8 +157,8 @@ def main(argv: list[str] | None = None) -> int:
             samples = [full[v] for v in values if v != value]
             interp = interpolate(samples, value, key=args.key)
             spec = member_spec(value, args, warm=False)
-            out_i, out_flat = pool.map(SimObjective(spec), [interp.params(spec),
-                                                            flat_params(spec)])
+            # In this process, not the pool: the task's success is read from the Evaluation.
+            out_i, out_flat = evaluate(spec, interp.spline()), evaluate(spec)
             opt = full[value].objective
             report["interpolation"].append({
                 args.key: value, "between": [interp.lower_value, interp.upper_value],
