@@ -13,11 +13,15 @@ controller has lost balance and hands over to the fall controller: a low-stiffne
 damped PD on the last pose.
 
 Linear momentum: Ldot_des,x = k_l m (c_r,x - c_x) + d_l (m cdot_r,x - L_x), with
-c_r = support centre + CMRT displacement; vertically damping only, Ldot_des,y = -d_lv L_y
-(plus k_l m dy when the CMRT has a vertical part), since a bend lowers the CM and a fixed
-height target would fight the pose. Angular momentum: the desired CoP is the support centre
-(kept COP_MARGIN inside the support) and Hdot_des = (p_des - c_x) F_y + c_y F_x with
-F = Ldot_des - m g, the ground force that places the CoP there.
+c_r = support centre + CMRT displacement; vertically damping only, Ldot_des,y = -d_lv L_y,
+since a bend lowers the CM and a fixed height target would fight the pose. A CMRT's vertical
+part dy enters as a posture (`sim.controllers.crouch`): the legs' reference angles bend so that
+the reference posture's CM is dy lower, and the vertical damping is toward the CMRT's vertical
+rate, Ldot_des,y = d_lv (m dy' - L_y). (A vertical CM target in the momentum objective alone
+moves the CM a few per cent of the way against the tracking term: docs/physics.md.)
+Angular momentum: the desired CoP is the support centre (kept COP_MARGIN inside the support)
+and Hdot_des = (p_des - c_x) F_y + c_y F_x with F = Ldot_des - m g, the ground force that
+places the CoP there.
 
 Optional CoP objective (`b_p` > 0, scheduled into a task window, off by default as in the
 paper): the QP then uses the velocity-product terms of the momentum rates and of the foot
@@ -36,6 +40,7 @@ import numpy as np
 
 from sim.character import ROOT_DOF, Character
 from sim.controllers.base import Cmrt, Observation
+from sim.controllers.crouch import RATE_STEP, Crouch
 from sim.dynamics import (
     GRAVITY,
     WRENCH_NO_NORMAL_FORCE,
@@ -186,6 +191,10 @@ class MomentumController:
         self._k = 0
         self._violation_steps = 0
         self._disp = (0.0, 0.0)
+        #: The vertical CMRT's posture (built at its first use) and, while it is non-zero,
+        #: its hinge offsets and their rates (rad, rad/s, rad/s^2) added to the reference.
+        self._crouch: Crouch | None = None
+        self._crouch_terms: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: True: the support wrench is shared between the stance feet by
         #: `sim.dynamics.inverse_dynamics_feet` (feet apart, after a step); False: the plain
         #: least-norm wrench (feet side by side, the default).
@@ -201,6 +210,7 @@ class MomentumController:
         self._k = 0
         self._violation_steps = 0
         self._disp = (0.0, 0.0)
+        self._crouch_terms = None
         self.c_ref = (0.0, 0.0)
 
     def act(self, obs: Observation, t: float) -> np.ndarray:
@@ -213,7 +223,10 @@ class MomentumController:
                 self._disp = _as_pair(cmrt(t))
                 nxt = _as_pair(cmrt(t + CMRT_VELOCITY_STEP))
                 prv = _as_pair(cmrt(t - CMRT_VELOCITY_STEP))
-                vel = ((nxt[0] - prv[0]) / (2 * CMRT_VELOCITY_STEP), 0.0)
+                vel = ((nxt[0] - prv[0]) / (2 * CMRT_VELOCITY_STEP),
+                       (nxt[1] - prv[1]) / (2 * CMRT_VELOCITY_STEP))
+                self._crouch_terms = (self._crouch_offsets(cmrt, t)
+                                      if self._disp[1] or nxt[1] or prv[1] else None)
             s = 0.5 * (lo + hi)
             self.c_ref = (s + self._disp[0], self._disp[1])
             self.solve(t, obs.q, obs.qd, obs.c, obs.cd, obs.A_L, obs.A_H, obs.Js, (lo, hi),
@@ -236,6 +249,20 @@ class MomentumController:
             self.lost = "foot_lift"
         return tau
 
+    def _crouch_offsets(self, cmrt: Cmrt, t: float
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The vertical CMRT's leg offsets at t and their rates (central differences over
+        RATE_STEP), or None while the vertical displacement is zero around t."""
+        h = RATE_STEP
+        dys = [_as_pair(cmrt(u))[1] for u in (t - h, t, t + h)]
+        if not any(dys):
+            return None
+        if self._crouch is None:
+            self._crouch = Crouch(self.character, self.arrays)
+        off = [self._crouch.offsets(self.trajectory(u)[0], dy)
+               for u, dy in zip((t - h, t, t + h), dys, strict=True)]
+        return off[1], (off[2] - off[0]) / (2 * h), (off[2] - 2 * off[1] + off[0]) / (h * h)
+
     def desired_rates(self, prm: ControllerParams, c: np.ndarray, cd: np.ndarray,
                       support: tuple[float, float], c_ref: tuple[float, float],
                       cd_ref: tuple[float, float]) -> tuple[np.ndarray, float]:
@@ -244,7 +271,7 @@ class MomentumController:
         L = m * cd
         ldot = np.array([
             prm.k_l * m * (c_ref[0] - c[0]) + prm.d_l * (m * cd_ref[0] - L[0]),
-            prm.k_l * m * c_ref[1] - prm.d_l_vertical * L[1],
+            prm.d_l_vertical * (m * cd_ref[1] - L[1]),
         ])
         F = ldot + np.array([0.0, m * GRAVITY])
         lo, hi = support
@@ -272,6 +299,9 @@ class MomentumController:
         centre = 0.5 * (lo + hi)
         ldot, hdot = self.desired_rates(prm, c, cd, support, c_ref, cd_ref)
         q_r, qd_r, qdd_r = self.trajectory(t)
+        if self._crouch_terms is not None:
+            q_r, qd_r, qdd_r = (a + b for a, b in zip((q_r, qd_r, qdd_r), self._crouch_terms,
+                                                      strict=True))
         hq = slice(ROOT_DOF, n)
         qdd_des = prm.k_t * (q_r - q[hq]) + prm.d_t * (qd_r - qd[hq]) + qdd_r
         w2 = prm.weight_vector(self.character) ** 2
