@@ -328,8 +328,8 @@ def test_optimize_bar_on_a_terminal_plain_lines_otherwise(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     lines = [ln for ln in p.stderr.splitlines() if ln.startswith("gen")]
-    assert [ln.split()[:4] for ln in lines] == [["gen", "1", "evals", "4"],
-                                               ["gen", "2", "evals", "8"]]
+    assert [ln.split()[:4] for ln in lines] == [["gen", "0", "evals", "4"],
+                                               ["gen", "1", "evals", "8"]]
     assert "━" not in p.stderr and "\r" not in p.stderr
     assert json.loads((tmp_path / "tty.json").read_text())["objective"] == json.loads(
         (tmp_path / "plain.json").read_text())["objective"]
