@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
 import socket
 import subprocess
 import time
@@ -20,6 +19,7 @@ from typing import Any
 
 import httpx
 import numpy as np
+from proc_helpers import stop_group
 
 ROOT = Path(__file__).resolve().parents[2]
 CMRT = ROOT / ".venv" / "bin" / "cmrt"
@@ -87,13 +87,7 @@ class Server:
                 time.sleep(0.3)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGTERM)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait(10)
+        stop_group(self.proc)
 
 
 def long_job(repo: Any, generations: int, *, name: str = "long_job", popsize: int = 8,

@@ -14,6 +14,7 @@ import uuid
 from pathlib import Path
 
 import pytest
+from proc_helpers import stop_group
 
 from cmrt.settings import Settings
 from optim.executors import SerialExecutor
@@ -78,12 +79,7 @@ def celery_worker(tmp_path_factory):
     try:
         yield settings, repo, worker, log
     finally:
-        os.killpg(worker.pid, signal.SIGTERM)
-        try:
-            worker.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(worker.pid, signal.SIGKILL)
-            worker.wait(10)
+        stop_group(worker)
 
 
 def _executor(settings) -> CeleryExecutor:

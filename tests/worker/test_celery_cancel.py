@@ -4,7 +4,6 @@ job is cancelled is dropped (its worker process killed), the queued ones are nev
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import threading
 import time
@@ -12,6 +11,7 @@ import uuid
 from pathlib import Path
 
 import pytest
+from proc_helpers import stop_group
 
 from cmrt.settings import Settings
 from sim.spec import parse_spec
@@ -83,9 +83,4 @@ def test_cancel_drops_the_running_candidate_and_skips_the_queued(tmp_path):
         nxt = _job(repo, "next")
         assert JobDriver(repo, nxt.id, ex, settings).run() == STOPPED
     finally:
-        os.killpg(worker.pid, signal.SIGTERM)
-        try:
-            worker.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(worker.pid, signal.SIGKILL)
-            worker.wait(10)
+        stop_group(worker)

@@ -1,0 +1,27 @@
+"""Process helpers shared by the tests that start servers and workers in their own sessions."""
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+
+#: s: how long a process group gets to finish after SIGTERM before it is killed.
+TERM_GRACE_S = 30.0
+#: s: how long the wait after SIGKILL may take.
+KILL_WAIT_S = 10.0
+
+
+def stop_group(proc: subprocess.Popen, grace: float = TERM_GRACE_S) -> None:
+    """Stop `proc`'s process group (started with ``start_new_session=True``): SIGTERM, then
+    SIGKILL if it has not exited within `grace` seconds. A group already gone is fine."""
+    if proc.poll() is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(grace)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(KILL_WAIT_S)
