@@ -204,7 +204,7 @@ class Rollout:
         active: Controller = balance
         # Only a task that can report a failed interaction gets the wrapper: every other clip
         # hands the controller the CMRT itself.
-        releasable = (ReleasableCmrt(cmrt) if cmrt is not None and task.events
+        releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
                       and task.reports_failure else None)
         active.reset(None, releasable or cmrt)
         events = task.events
