@@ -76,6 +76,9 @@ class Evaluation:
     task_success: the task's own goal (ball held at the end, ...), None for tasks that have
         none beyond balance. task_penalty: what the task added to the objective (0 if nothing).
     cut: stopped early as a certain last of its generation (see `sim.rollout.Rollout.run`).
+    cmrt_released_at: when (s) the rollout released the CMRT because the task reported that
+        the interaction it anticipates did not happen (`Task.interaction_failed`); None if it
+        was held to the end (or there was none).
     """
 
     objective: float
@@ -94,6 +97,7 @@ class Evaluation:
     #: The run was stopped early by `stop_above` (sim.rollout): `objective` is then a lower
     #: bound of the clip's objective, not its value.
     cut: bool = False
+    cmrt_released_at: float | None = None
     traces: Traces | None = field(default=None, repr=False)
     frames: Frames | None = field(default=None, repr=False)
 

@@ -18,6 +18,10 @@ least sqrt(steps) x the support length, more than any non-fall objective can be 
 exceeds the support length), and larger the earlier the fall, so every fall ranks worse than
 every non-fall and later falls rank better. The fall's direction is the side of the support
 centre where the CM's capture point c_x + cd_x sqrt(c_y / g) lies at the fall.
+When the task reports that the interaction the CMRT anticipates did not happen
+(`Task.interaction_failed`, e.g. a punch that met nothing), the CMRT is released
+(`ReleasableCmrt`): from then the controller's reference eases back to its own (the support
+centre, no displacement) over RELEASE_TIME, and it balances purely reactively (paper 6.1.4).
 With traces on, a clip whose controller lost balance goes on under the fall controller until
 a body touches the ground or the CM drops, to show the fall (frames at FRAME_RATE for replay).
 """
@@ -45,12 +49,44 @@ from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
 from sim.recording import FRAME_EVERY, Recorder
 from sim.spec import TaskSpec
-from sim.trajectory import PoseTrajectory
+from sim.trajectory import PoseTrajectory, ease
 
 FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
 MIN_CONTACT_FORCE = 1.0  # N: below this total normal force a step has no CP measurement
 DIVERGENCE_CHECK_STEPS = 10  # the state is checked for divergence every this many steps
 CUT_CHECK_STEPS = 10  # a run with `stop_above` reads its bound every this many steps
+#: s: a released CMRT goes from its value at the release to 0 by a quintic ease this long, not
+#: at once, so that the reference (and a vertical CMRT's crouch posture) has no jump; six QP
+#: solves at the controller's 60 Hz.
+RELEASE_TIME = 0.1
+
+
+class ReleasableCmrt:
+    """A CMRT the rollout can drop mid-clip: `cmrt(t)` unchanged (the same values, bit for
+    bit) until `release(t_r)`, then its value at t_r eased to 0 over `ramp` s, so that the
+    controller's reference returns to its own (support centre, no displacement)."""
+
+    def __init__(self, cmrt: Cmrt, ramp: float = RELEASE_TIME):
+        self.cmrt = cmrt
+        self.ramp = ramp
+        self.released_at: float | None = None
+        self._held = (0.0, 0.0)  # m, (horizontal, vertical) displacement at the release
+
+    def release(self, t: float) -> None:
+        """Drop the CMRT from t (s) on."""
+        v = self.cmrt(t)
+        if isinstance(v, tuple | list | np.ndarray):
+            self._held = (float(v[0]), float(v[1]) if len(v) > 1 else 0.0)
+        else:
+            self._held = (float(v), 0.0)
+        self.released_at = t
+
+    def __call__(self, t: float) -> object:
+        at = self.released_at
+        if at is None or t <= at:
+            return self.cmrt(t)
+        w = 1.0 - ease((t - at) / self.ramp)[0] if self.ramp > 0.0 else 0.0
+        return (w * self._held[0], w * self._held[1])
 
 
 def standing_state(ch: Character, arrays: ModelArrays,
@@ -166,7 +202,11 @@ class Rollout:
         task.reset(phys)
         balance = self.controller
         active: Controller = balance
-        active.reset(None, cmrt)
+        # Only a task that can report a failed interaction gets the wrapper: every other clip
+        # hands the controller the CMRT itself.
+        releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
+                      and task.reports_failure else None)
+        active.reset(None, releasable or cmrt)
         events = task.events
         foot_of_point = np.repeat(ch.feet, 2).tolist()
         n_feet = len(ch.feet)
@@ -255,6 +295,9 @@ class Rollout:
             fy, _fx, cop = contact_forces()
             if events:
                 task.after_step(phys, t + DT)
+                if (releasable is not None and releasable.released_at is None and not lost
+                        and task.interaction_failed(phys, t + DT)):
+                    releasable.release(t + DT)
             clear_contacts()
             k_done = k + 1
             e = math.nan
@@ -290,6 +333,7 @@ class Rollout:
             error_norm=error_norm, max_abs_error=max_e, sim_seconds=k_done * DT,
             cpu_seconds=time.process_time() - cpu0, steps=k_done, contact_steps=contact_steps,
             fall_direction=direction, task_success=task.success(phys), task_penalty=penalty,
+            cmrt_released_at=None if releasable is None else releasable.released_at,
             traces=out_traces, frames=out_frames,
         )
 

@@ -21,6 +21,11 @@ Contract of a `Task` (one per simulator; `reset` before each run):
     the controller's torques are applied and before the step; `after_step(physics, t)` (a
     catch, a hit) runs after the step while its contacts are still readable. Both are called
     only when `events` is True.
+  * `interaction_failed(physics, t) -> bool`, polled after `after_step` (tasks whose
+    `reports_failure` is True, while a CMRT is held): True once the task knows that the
+    interaction the anticipation was made for did not happen as expected (a punch that met
+    nothing). The rollout then releases the CMRT (`sim.rollout.ReleasableCmrt`): the balance
+    controller goes back to its own reference, purely reactive (paper 6.1.4, Figure 11 bottom).
   * `success(physics) -> bool | None` at the end (None: the task has no goal beyond balance);
     `penalty(physics, scale) -> float` (>= 0) is added to the objective; `scale` is the
     objective's fall-penalty unit (sqrt(steps) x support length).
@@ -77,6 +82,8 @@ class Task:
     """Run-time task: props, motions, events, success and penalty (module docstring)."""
 
     events = False
+    #: True: the rollout polls `interaction_failed` (only tasks with `events`).
+    reports_failure = False
     props: tuple[PropDef, ...] = ()
 
     def __init__(self, spec: Any, character: Character):
@@ -99,6 +106,9 @@ class Task:
 
     def after_step(self, physics: Any, t: float) -> None:
         return None
+
+    def interaction_failed(self, physics: Any, t: float) -> bool:
+        return False
 
     def success(self, physics: Any) -> bool | None:
         return None

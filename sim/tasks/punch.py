@@ -17,6 +17,12 @@ bag out of reach is a larger `distance`.
 Success: a hand (one of the geoms the character's file lists as `hands`) touched the bag during
 the task window. A miss adds one fall-penalty unit to the objective, so that the optimiser
 cannot make the punch easier by pulling the hand out of reach.
+
+The expected interaction failed (`interaction_failed`, the rollout then releases the CMRT) when
+no hand has touched the bag by the end of the earliest punch's pose change (or of the task
+window, if that comes first): the arm is then at its target, fully extended, so that strike
+can no longer meet the bag, and the anticipation made for its impact has nothing to act on
+(paper 6.1.4, Figure 11 bottom: the bag absent or out of reach).
 """
 
 from __future__ import annotations
@@ -36,6 +42,8 @@ MAX_BAG_MASS_KG = 500.0
 MAX_MOTIONS = 8  # guard steps, punches
 #: A contact point within this distance (m) of a hand sphere's surface is the hand's.
 HAND_CONTACT_TOLERANCE = 0.005
+#: s: clip times within this of each other are the same instant (steps are 1 ms).
+TIME_TOLERANCE = 1e-9
 
 
 class Guard(StrictModel):
@@ -74,13 +82,18 @@ class PunchConfig(TaskConfig):
     rope: Annotated[float, Field(gt=0.0, le=5.0)] = 0.9
     links: Annotated[int, Field(ge=0, le=20)] = 0
 
+    def punch_windows(self, clip: Any) -> list[tuple[float, float]]:
+        """(start s, duration s) of every punch in clip time."""
+        return [(clip.task_start + p.delay, p.duration if p.duration is not None
+                 else clip.duration) for p in self.punches]
+
     def motion_windows(self, clip: Any) -> list[tuple[str, float, float, dict[str, float]]]:
         """(field path, start s, duration s, target) of every motion in clip time."""
         out = [(f"task.guard.{i}", g.start, g.duration, g.target)
                for i, g in enumerate(self.guard)]
-        for i, p in enumerate(self.punches):
-            dur = p.duration if p.duration is not None else clip.duration
-            out.append((f"task.punches.{i}", clip.task_start + p.delay, dur, p.target))
+        for i, (p, (start, dur)) in enumerate(zip(self.punches, self.punch_windows(clip),
+                                                  strict=True)):
+            out.append((f"task.punches.{i}", start, dur, p.target))
         if self.retract is not None:
             r = self.retract
             dur = r.duration if r.duration is not None else max(0.5 * clip.decay, 0.05)
@@ -109,9 +122,10 @@ class PunchConfig(TaskConfig):
 
 
 class PunchTask(Task):
-    """The bag prop, the arm motions, and the hit detection (module docstring)."""
+    """The bag prop, the arm motions, and the hit and miss detection (module docstring)."""
 
     events = True
+    reports_failure = True
 
     def __init__(self, spec: Any, character: Any):
         # Here, not at the module's top: parsing a spec must not import ODE (sim/__init__.py).
@@ -130,6 +144,10 @@ class PunchTask(Task):
             hanging=Hanging(anchor=(x, cfg.height + cfg.rope), links=cfg.links))
         self.props = (self.bag,)
         self.window = (spec.clip.task_start, spec.clip.task_end)
+        #: s: by then a hand should have met the bag (the earliest punch's end, at the latest
+        #: the task window's: hits count only inside it).
+        self.miss_time = min(min(start + dur for start, dur in cfg.punch_windows(spec.clip)),
+                             spec.clip.task_end)
         self.hands = [(name, character.geom(name).radius) for name in character.hands]
         self.hit_time: float | None = None
         self.hit_hand: str | None = None
@@ -165,6 +183,10 @@ class PunchTask(Task):
             if math.hypot(point[0] - gx, point[1] - gy) <= radius + HAND_CONTACT_TOLERANCE:
                 return name
         return None
+
+    def interaction_failed(self, physics: Any, t: float) -> bool:
+        """No hand on the bag by `miss_time` (module docstring)."""
+        return self.hit_time is None and t >= self.miss_time - TIME_TOLERANCE
 
     def success(self, physics: Any) -> bool | None:
         return self.hit_time is not None
