@@ -257,6 +257,9 @@ class SimulationOut(BaseModel):
     cpu_seconds: float | None = None
     steps: int | None = None
     contact_steps: int | None = None
+    cmrt_released_at: float | None = Field(
+        None, description="when (s) the CMRT was released because the task reported that the "
+                          "interaction it anticipates failed (a missed punch); null: held")
     traces: dict[str, list[Any]] | None = None
     frames: dict[str, Any] | None = None
 

@@ -27,7 +27,7 @@ MAX_WAITING = 4
 #: The outcome fields copied from sim's Evaluation.
 OUTCOME_FIELDS = ("objective", "fell", "fall_time", "fall_reason", "fall_direction",
                   "task_success", "task_penalty", "error_norm", "max_abs_error", "sim_seconds",
-                  "cpu_seconds", "steps", "contact_steps")
+                  "cpu_seconds", "steps", "contact_steps", "cmrt_released_at")
 
 
 def _finite_or_none(v: Any) -> Any:

@@ -11,10 +11,13 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 from fastapi.testclient import TestClient
 from svc_helpers import QUIET, bend_spec, wait_job
 
 from service.app import create_app
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_clip_without_cmrt(client):
@@ -48,6 +51,19 @@ def test_cmrt_from_job_library_and_inline(client):
         "spec": spec, "traces": False,
         "cmrt": {"source": "params", "params": a["cmrt"]["params"]}}).json()
     assert inline["objective"] == a["objective"]  # same clip, same CMRT: bit for bit
+
+
+def test_a_missed_punch_reports_the_cmrt_release(client):
+    """The what-if of the punch mismatch: with a CMRT held, the miss (no hand on the bag by the
+    end of the first strike, 1.2 s) releases it and the outcome says when; without a CMRT
+    there is nothing to release."""
+    miss = yaml.safe_load((ROOT / "examples/punch_miss.yaml").read_text())
+    flat = client.post("/simulations", json={"spec": miss, "traces": False,
+                                             "cmrt": {"source": "params", "params": [0.5] * 8}})
+    assert flat.status_code == 200, flat.text
+    assert flat.json()["cmrt_released_at"] == pytest.approx(1.2)
+    none = client.post("/simulations", json={"spec": miss, "traces": False}).json()
+    assert none["cmrt_released_at"] is None and none["objective"] == flat.json()["objective"]
 
 
 @pytest.mark.parametrize(("body", "needle"), [
