@@ -56,6 +56,11 @@ class JobRepository(abc.ABC):
         """The job; raises NotFound."""
 
     @abc.abstractmethod
+    def cancel_requested(self, job_id: str) -> bool:
+        """Whether a cancel was asked for the job (its `cancel_requested` alone, without the
+        rest of the row: a driver polls it twice a second); raises NotFound."""
+
+    @abc.abstractmethod
     def list_jobs(
         self,
         *,
@@ -139,6 +144,13 @@ class SqlJobs(SqlBase, JobRepository):
             if job is None:
                 raise NotFound(f"job {job_id} not found")
             return _job_record(job)
+
+    def cancel_requested(self, job_id):
+        with self._read() as s:
+            flag = s.execute(select(Job.cancel_requested).where(Job.id == job_id)).scalar()
+            if flag is None:
+                raise NotFound(f"job {job_id} not found")
+            return bool(flag)
 
     def list_jobs(self, *, status=None, family=None, limit=50, offset=0):
         conds = []

@@ -26,7 +26,7 @@ Typical job flow (docs/service.md, "Architecture"):
    `record_generation(job, g, ...)` before asking g + 1 (idempotent: if another process closed
    it first, continue from the stored record's optimizer_state).
 6. driver: `set_job_status(job, "converged" | "stopped" | "failed" | "cancelled", ...)`,
-   checking `get_job(job).cancel_requested` between generations; `job_cmrt(job)` finds its
+   checking `cancel_requested(job)` (the flag alone) between generations; `job_cmrt(job)` finds its
    library entry, `add_cmrt(entry)` adds one.
 """
 

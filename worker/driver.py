@@ -224,7 +224,7 @@ class JobDriver:
         now = time.monotonic()
         if force or now - self._last_cancel_check >= 0.5:
             self._last_cancel_check = now
-            if self.repo.get_job(self.job_id).cancel_requested:
+            if self.repo.cancel_requested(self.job_id):
                 raise DriverInterruptError("cancel")
 
     # -- main ----------------------------------------------------------------------------------

@@ -142,8 +142,12 @@ def test_request_cancel(repo: SqlRepository) -> None:
 
     running = new_job(repo)
     repo.set_job_status(running.id, "running")
+    assert repo.cancel_requested(running.id) is False
     flagged = repo.request_cancel(running.id)
     assert flagged.status == "running" and flagged.cancel_requested
+    assert repo.cancel_requested(running.id) is True
+    with pytest.raises(NotFound):
+        repo.cancel_requested("no-such-job")
     assert repo.set_job_status(running.id, "cancelled").status == "cancelled"
 
     finished = new_job(repo)
