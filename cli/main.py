@@ -151,7 +151,10 @@ def cmd_optimize(args: argparse.Namespace) -> int:
     res.save(out)
     summary = {
         "spec": spec.name, "out": str(out), "objective": res.objective, "fell": res.fell,
+        "fall_direction": res.fall_direction, "task_success": res.task_success,
         "baseline_objective": res.baseline_objective, "baseline_fell": res.baseline_fell,
+        "baseline_fall_direction": res.baseline_fall_direction,
+        "baseline_task_success": res.baseline_task_success,
         "evaluations": res.evaluations, "iterations": res.iterations,
         "stop_rule": res.stop_rule, "wall_seconds": res.wall_seconds,
     }

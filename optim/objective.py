@@ -102,6 +102,8 @@ class SimObjective:
         return EvalOutcome(
             objective=float(ev.objective), fell=bool(ev.fell), cpu_seconds=float(ev.cpu_seconds),
             cut=bool(ev.cut), sim_seconds=float(ev.sim_seconds),
+            fall_time=None if ev.fall_time is None else float(ev.fall_time),
+            fall_direction=ev.fall_direction, task_success=ev.task_success,
         )
 
     def __getstate__(self) -> dict[str, str]:

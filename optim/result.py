@@ -7,7 +7,11 @@ File format (JSON object, `format` = "cmrt-result/1"); units: seconds, metres.
     length               clip length (s); knot_times (s), values (m), vertical_values (m|null)
     curve                {"t": [...], "dx": [...](, "dy": [...])}: 100 samples of the CMRT
     objective, fell                      best CMRT, re-evaluated at the end
+    fall_direction, task_success         its fall's direction ("forward" | "backward" | null)
+                                         and the task's goal (true | false | null: no goal)
     baseline_objective, baseline_fell    the same clip without CMRT (flat spline)
+    baseline_fall_direction, baseline_task_success   likewise (the last four optional: absent
+                                         in files written before they existed, read as null)
     evaluations, iterations, stop_rule, wall_seconds, seed
     history              per generation: iteration, evaluations, best, median, worst, sigma,
                          best_so_far
@@ -34,6 +38,8 @@ from optim.errors import ParamsError, ResultFileError
 from optim.spline import CmrtSpline, check_params, decode, sample_curve
 
 RESULT_FORMAT = "cmrt-result/1"
+#: The values a fall direction takes (sim.evaluation.Evaluation.fall_direction).
+FALL_DIRECTIONS = ("forward", "backward")
 
 
 def _num(v: Any) -> bool:
@@ -73,8 +79,14 @@ _FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "history": (lambda v: isinstance(v, list), "a list of per-generation objects"),
     "basis_id": (_opt(lambda v: isinstance(v, str)), "null or a string"),
     "reduced_params": (_opt(_num_list), "null or a list of numbers"),
+    "fall_direction": (_opt(lambda v: v in FALL_DIRECTIONS), 'null, "forward" or "backward"'),
+    "task_success": (_opt(lambda v: isinstance(v, bool)), "null, true or false"),
+    "baseline_fall_direction": (_opt(lambda v: v in FALL_DIRECTIONS),
+                                'null, "forward" or "backward"'),
+    "baseline_task_success": (_opt(lambda v: isinstance(v, bool)), "null, true or false"),
 }
-_OPTIONAL = {"vertical_values", "basis_id", "reduced_params", "history"}
+_OPTIONAL = {"vertical_values", "basis_id", "reduced_params", "history", "fall_direction",
+             "task_success", "baseline_fall_direction", "baseline_task_success"}
 _HISTORY_KEYS = ("iteration", "evaluations", "best", "median", "worst", "sigma", "best_so_far")
 
 
@@ -102,6 +114,10 @@ class OptimizationResult:
     history: list[dict[str, Any]] = field(default_factory=list)
     basis_id: str | None = None
     reduced_params: list[float] | None = None
+    fall_direction: str | None = None
+    task_success: bool | None = None
+    baseline_fall_direction: str | None = None
+    baseline_task_success: bool | None = None
 
     @classmethod
     def build(
@@ -121,6 +137,10 @@ class OptimizationResult:
         history: Sequence[Mapping[str, Any]] = (),
         basis_id: str | None = None,
         reduced_params: Sequence[float] | None = None,
+        fall_direction: str | None = None,
+        task_success: bool | None = None,
+        baseline_fall_direction: str | None = None,
+        baseline_task_success: bool | None = None,
     ) -> OptimizationResult:
         """A result for `spec` (a TaskSpec) whose best CMRT is `params` (spline data derived)."""
         p = check_params(spec, params)
@@ -148,6 +168,10 @@ class OptimizationResult:
             history=[dict(h) for h in history],
             basis_id=basis_id,
             reduced_params=None if reduced_params is None else [float(v) for v in reduced_params],
+            fall_direction=fall_direction,
+            task_success=task_success,
+            baseline_fall_direction=baseline_fall_direction,
+            baseline_task_success=baseline_task_success,
         )
 
     # -- derived -------------------------------------------------------------------------------
@@ -213,6 +237,10 @@ class OptimizationResult:
             "reduced_params": None
             if self.reduced_params is None
             else [float(v) for v in self.reduced_params],
+            "fall_direction": self.fall_direction,
+            "task_success": self.task_success,
+            "baseline_fall_direction": self.baseline_fall_direction,
+            "baseline_task_success": self.baseline_task_success,
         }
 
     def to_json(self) -> str:
@@ -277,6 +305,10 @@ class OptimizationResult:
             reduced_params=None
             if d.get("reduced_params") is None
             else [float(v) for v in d["reduced_params"]],
+            fall_direction=d.get("fall_direction"),
+            task_success=d.get("task_success"),
+            baseline_fall_direction=d.get("baseline_fall_direction"),
+            baseline_task_success=d.get("baseline_task_success"),
         )
         try:
             res.spline()

@@ -203,6 +203,10 @@ def optimize(
         history=[h.to_dict() for h in opt.history],
         basis_id=space.basis_id,
         reduced_params=None if basis is None else final.best_x,
+        fall_direction=final.best.fall_direction,
+        task_success=final.best.task_success,
+        baseline_fall_direction=final.flat.fall_direction,
+        baseline_task_success=final.flat.task_success,
     )
 
 

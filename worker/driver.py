@@ -146,9 +146,17 @@ class StoreEvaluator:
                 raise JobFailedError(
                     f"generation {generation}: stored candidate {r.index} differs from the one "
                     "asked again after a restart (optimizer state not reproducible)")
-        return [EvalOutcome(objective=float(r.objective), fell=bool(r.fell),
-                            cpu_seconds=float(r.cpu_seconds or 0.0),
-                            error=(r.details or {}).get("error")) for r in rows]
+        return [_stored_outcome(r) for r in rows]
+
+
+def _stored_outcome(row: Any) -> EvalOutcome:
+    """The EvalOutcome of a stored evaluation row (its details carry the error and the fall
+    and task verdicts, `worker.evaluation.outcome_fields`)."""
+    d = row.details or {}
+    return EvalOutcome(objective=float(row.objective), fell=bool(row.fell),
+                       cpu_seconds=float(row.cpu_seconds or 0.0), error=d.get("error"),
+                       fall_time=d.get("fall_time"), fall_direction=d.get("fall_direction"),
+                       task_success=d.get("task_success"))
 
 
 class StoreRunState:

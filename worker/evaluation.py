@@ -90,12 +90,21 @@ class SpecCache:
         return entry
 
 
+#: EvalOutcome fields stored in an evaluation row's `details` when they are not None.
+OUTCOME_DETAILS = ("fall_time", "fall_direction", "task_success")
+
+
 def outcome_fields(out: EvalOutcome, worker: str | None = None) -> dict[str, Any]:
     """store_result / record_evaluation keyword arguments for an objective outcome (see the
     module docstring)."""
     details: dict[str, Any] = {}
     if out.error is not None:
         details["error"] = out.error
+    # the clip's verdict beyond `fell` (issue 10: evaluation records say how and whether the
+    # task succeeded); only what applies, so a quiet-stance row stays small
+    for key in OUTCOME_DETAILS:
+        if getattr(out, key) is not None:
+            details[key] = getattr(out, key)
     if worker:
         details["worker"] = worker
     return {

@@ -86,3 +86,20 @@ def test_serial_and_pool_optimize_a_real_bend_identically():
         for d in (serial, pooled):
             d.pop("wall_seconds", None)
         assert pooled == serial
+
+
+def test_outcome_carries_the_fall_direction_and_the_task_verdict():
+    """The domino without a CMRT falls backward and leaves the block standing: the objective's
+    outcome says so (the evaluation rows and result files take these fields from it)."""
+    from pathlib import Path
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[2]
+    spec = parse_spec(yaml.safe_load((root / "examples/domino.yaml").read_text()))
+    fn = SimObjective(spec)
+    out = fn(flat_params(spec))
+    ev = fn.evaluation(None)
+    assert out.fell and out.fall_direction == "backward" == ev.fall_direction
+    assert out.fall_time == ev.fall_time and 1.0 < out.fall_time < 2.0
+    assert out.task_success is False and ev.task_success is False

@@ -158,6 +158,9 @@ def test_result_file_errors_name_the_field(small, tmp_path):
         "dimension": ("dimension", 9),
         "history[0]": ("history", [{"iteration": 1}]),
         "knot_times": ("knot_times", [2.0, 1.0, 0.5, 0.2]),
+        "'fall_direction'": ("fall_direction", "sideways"),
+        "'task_success'": ("task_success", 1),
+        "baseline_fall_direction": ("baseline_fall_direction", 0),
     }
     for needle, (field, value) in cases.items():
         bad = dict(good, **{field: value})
@@ -173,6 +176,20 @@ def test_result_file_errors_name_the_field(small, tmp_path):
         OptimizationResult.load(p)
     with pytest.raises(ResultFileError, match="cannot read"):
         OptimizationResult.load(tmp_path / "absent.json")
+
+
+def test_result_fall_and_task_verdicts_round_trip_and_old_files_read_as_null(small, tmp_path):
+    res = optimize(small, SerialExecutor(), seed=1, objective=Sphere())
+    assert res.fall_direction is None and res.task_success is None  # a synthetic objective
+    d = dict(res.to_dict(), fall_direction="forward", task_success=True,
+             baseline_fall_direction="backward", baseline_task_success=False)
+    back = OptimizationResult.from_dict(d, "r.json")
+    assert (back.fall_direction, back.task_success) == ("forward", True)
+    assert (back.baseline_fall_direction, back.baseline_task_success) == ("backward", False)
+    assert back.to_dict() == d
+    old = {k: v for k, v in d.items() if "direction" not in k and "success" not in k}
+    legacy = OptimizationResult.from_dict(old, "old.json")
+    assert legacy.fall_direction is None and legacy.baseline_task_success is None
 
 
 def test_flat_params_baseline_is_flat_spline(small):

@@ -77,6 +77,22 @@ def test_candidate_is_evaluated_once_and_its_result_stored(setup) -> None:
     assert repo.get_job_calls == 1
 
 
+def test_fall_and_task_verdicts_are_stored_and_read_back_by_the_driver(repo) -> None:
+    from worker.driver import _stored_outcome
+
+    job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
+    repo.set_job_status(job.id, "running")
+    verdict = EvalOutcome(objective=21.5, fell=True, cpu_seconds=0.1, fall_time=1.35,
+                          fall_direction="backward", task_success=False)
+    cache = SpecCache(lambda spec: (lambda x: verdict))
+    repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5]])
+    assert run(repo, job.id, 0, 0, cache)["status"] == "done"
+    row = get_evaluation(repo, job.id, 0, 0)
+    assert row.details == {"worker": "w1/42", "fall_time": 1.35, "fall_direction": "backward",
+                           "task_success": False}
+    assert _stored_outcome(row) == verdict
+
+
 def test_a_raising_objective_is_stored_as_done_with_the_worst_objective(setup) -> None:
     repo, job_id, _objective, cache = setup
     repo.put_pending_evaluations(job_id, 0, [[0.95, 0.5]])
