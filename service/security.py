@@ -92,7 +92,8 @@ class HttpEdge:
         self.asgi = asgi
         self.app = app
         self.settings = settings
-        self.token = token_of(settings).encode()
+        self.secret = token_of(settings)  # the signed links' key
+        self.token = self.secret.encode()  # compared with the bearer header's bytes
 
     def _token_ok(self, scope: Scope) -> bool:
         for k, v in scope.get("headers", []):
@@ -134,7 +135,7 @@ class HttpEdge:
             return
         if (needs_token(self.settings, method, path) and not self._token_ok(scope)
                 and not (method in ("GET", "HEAD") and links.verify(
-                    self.token.decode(), path, scope.get("query_string", b"")))):
+                    self.secret, path, scope.get("query_string", b"")))):
             await _respond(send_with_headers, 401,
                            "authorization: a valid 'Bearer <CMRT_API_TOKEN>' header is required",
                            {"www-authenticate": 'Bearer realm="cmrt"'})
