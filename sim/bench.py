@@ -81,11 +81,18 @@ def replay_ode_cpu_per_second(sim: Rollout) -> tuple[float, float, bool]:
         points.append(pts.copy())
         make_contacts(pts, feet)
 
+    def record_clamped(tau: list[float]) -> None:
+        taus.append(np.array(tau, dtype=float))  # clamped already: apply_torques keeps it
+        add_clamped(tau)
+
+    add_clamped = phys.add_clamped_torques
     phys.apply_torques, phys.make_contacts = record_torques, record_contacts
+    phys.add_clamped_torques = record_clamped
     try:
         sim.run()
     finally:
-        del phys.apply_torques, phys.make_contacts  # the class's methods again
+        # the class's methods again
+        del phys.apply_torques, phys.make_contacts, phys.add_clamped_torques
     end = phys.poses()
     task = sim.task
     events = task.events

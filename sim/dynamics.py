@@ -537,6 +537,40 @@ def checked_inverse_dynamics_lift(M, h, Js, qdd, sole_x, points, lo, hi, mu):
     return tau, code, cop, top
 
 
+@njit(cache=True)
+def step_model_held(q, qd, floats, ints, path, out, qdd, mu, neg_limit, limit, tau):
+    """`step_model_packed`, then `checked_inverse_dynamics_lift` of the held accelerations
+    `qdd` on the model terms it wrote (every foot in stance), then the torques clamped to
+    [neg_limit, limit] as `Physics.apply_torques` clamps them, written into `tau`: one
+    compiled call for a step between QP solves. Returns (support back edge x, front edge x,
+    lowest outline clearance, wrench code, wrench CoP, highest heel or toe y)."""
+    lo, hi, clearance = step_model_packed(q, qd, floats, ints, path, out)
+    n = q.shape[0]
+    nf = ints[1]
+    # The views PackedModel.arrays() gives, in its order: M, h, c, cd, A_L, A_H, Js, pts,
+    # sole_x.
+    M = out[0:n * n].reshape((n, n))
+    at = n * n
+    h = out[at:at + n]
+    at += n + 4 + 2 * n + n  # h, c, cd, A_L, A_H
+    Js = out[at:at + 3 * nf * n].reshape((3 * nf, n))
+    at += 3 * nf * n
+    pts = out[at:at + 4 * nf].reshape((2 * nf, 2))
+    at += 4 * nf
+    sole_x = out[at:at + nf]
+    t, code, cop, top = checked_inverse_dynamics_lift(M, h, Js, qdd, sole_x, pts, lo, hi, mu)
+    for i in range(t.shape[0]):
+        # np.minimum(np.maximum(t, neg_limit), limit) element by element: numpy keeps the
+        # first operand when it compares >= (<=) or is NaN, which gives the same bits.
+        v = t[i]
+        if not (v >= neg_limit[i] or math.isnan(v)):
+            v = neg_limit[i]
+        if not (v <= limit[i] or math.isnan(v)):
+            v = limit[i]
+        tau[i] = v
+    return lo, hi, clearance, code, cop, top
+
+
 def checked_inverse_dynamics_feet(M: np.ndarray, h: np.ndarray, Js: np.ndarray,
                                   qdd: np.ndarray, points: np.ndarray, sole_x: np.ndarray,
                                   lo: float, hi: float, mu: float, margin: float

@@ -536,6 +536,17 @@ class Physics:
         list(map(_ADD_TORQUE, self.hinges,
                  np.minimum(np.maximum(tau, self._neg_torque_limit_array), lim).tolist()))
 
+    @property
+    def torque_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(-limit, limit) per hinge (N m): the clamp of `apply_torques`, for a caller that
+        clamps in a compiled call and hands the result to `add_clamped_torques`."""
+        return self._neg_torque_limit_array, self._torque_limit_array
+
+    def add_clamped_torques(self, tau: list[float]) -> None:
+        """Hinge torques (N m, +t on the child) already clamped to `torque_bounds` as
+        `apply_torques` clamps them: `apply_torques` without its clamp and checks."""
+        list(map(_ADD_TORQUE, self.hinges, tau))
+
     def add_force(self, b: int, fx: float, fy: float = 0.0) -> None:
         """An external force (N) at body b's CoM for the next step."""
         self.bodies[b].addForce((fx, fy, 0.0))

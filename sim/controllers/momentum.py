@@ -241,13 +241,31 @@ class MomentumController:
             # One compiled call for the wrench and the stance heels' and toes' highest point.
             tau, code, _cop, top = checked_inverse_dynamics_lift(
                 obs.M, obs.h, obs.Js, self.qdd, obs.sole_x, obs.points, lo, hi, self.mu)
+        self._judge(code, top)
+        return tau
+
+    def held_torque_step(self) -> bool:
+        """Whether the next `act` holds qdd* (no QP solve) and shares the support wrench by
+        least norm over every foot: its torques are then those of
+        `sim.dynamics.step_model_held` with `qdd` and `mu`, and the rollout may compute them
+        in that one compiled call with the model terms and report the wrench through
+        `held_act` instead of calling `act` (the same torques and state, bit for bit)."""
+        return self._k % self.qp_every != 0 and not self.feet_apart
+
+    def held_act(self, code: int, top: float) -> None:
+        """What `act` does after its inverse dynamics on a step `held_torque_step` allowed,
+        given the wrench code and the highest stance heel or toe `step_model_held` found."""
+        self._k += 1
+        self._judge(code, top)
+
+    def _judge(self, code: int, top: float) -> None:
+        """Count the steps with an inadmissible wrench and set `lost` (see the class)."""
         violations = self._violation_steps + 1 if code != WRENCH_OK else 0
         self._violation_steps = violations
         if code == WRENCH_NO_NORMAL_FORCE or violations * self.dt > WRENCH_VIOLATION_LIMIT:
             self.lost = WRENCH_REASONS[code]
         elif top > self.foot_lift_limit:  # stance heels and toes
             self.lost = "foot_lift"
-        return tau
 
     def _crouch_offsets(self, cmrt: Cmrt, t: float
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
