@@ -329,7 +329,8 @@ class MomentumController:
         w2, tracking = self._tracking_terms(prm)
         Al = A_L / m
         ah = A_H / m
-        H = prm.b_l * Al.T @ Al + prm.b_h * np.outer(ah, ah)
+        # ah[:, None] * ah is np.outer's own product (its values), without its Python wrapper.
+        H = prm.b_l * Al.T @ Al + prm.b_h * (ah[:, None] * ah)
         H[hq, hq] += tracking
         H += self._qdd_regularisation
         rhs_c = np.zeros(Js.shape[0])
