@@ -199,8 +199,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from sim.bench import run_bench, run_task_bench
 
     specs = [load_spec(p) for p in args.specs]  # parse them all before measuring anything
-    reports = [run_bench(seconds=args.seconds)]
-    reports += [run_task_bench(spec, seconds=args.seconds) for spec in specs]
+    reports = [run_bench(seconds=args.seconds, repeat=args.repeat)]
+    reports += [run_task_bench(spec, seconds=args.seconds, repeat=args.repeat)
+                for spec in specs]
     if args.json:
         print(json.dumps(reports[0] if not specs else reports))
     else:
@@ -312,6 +313,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("specs", nargs="*", metavar="SPEC",
                    help="also measure these task specs' worlds (props included) and clips")
     b.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per case")
+    b.add_argument("--repeat", type=_positive_int, default=1,
+                   help="rounds of (raw, controller, replay) per world, the rates over all")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
 

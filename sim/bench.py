@@ -81,11 +81,18 @@ def replay_ode_cpu_per_second(sim: Rollout) -> tuple[float, float, bool]:
         points.append(pts.copy())
         make_contacts(pts, feet)
 
+    def record_clamped(tau: list[float]) -> None:
+        taus.append(np.array(tau, dtype=float))  # clamped already: apply_torques keeps it
+        add_clamped(tau)
+
+    add_clamped = phys.add_clamped_torques
     phys.apply_torques, phys.make_contacts = record_torques, record_contacts
+    phys.add_clamped_torques = record_clamped
     try:
         sim.run()
     finally:
-        del phys.apply_torques, phys.make_contacts  # the class's methods again
+        # the class's methods again
+        del phys.apply_torques, phys.make_contacts, phys.add_clamped_torques
     end = phys.poses()
     task = sim.task
     events = task.events
@@ -114,49 +121,74 @@ def replay_ode_cpu_per_second(sim: Rollout) -> tuple[float, float, bool]:
     return cpu / seconds, seconds, phys.poses() == end
 
 
-def run_bench(seconds: float = 5.0) -> dict[str, float]:
-    """Measure both cases in this process; returns CPU seconds per simulated second and ratio."""
-    sim = Rollout(_spec(seconds))
-    Rollout(_spec(0.05)).run()  # warm-up: numba compilation and caches
-    raw = raw_ode_cpu_per_second(sim, seconds)
-    t0 = time.process_time()
-    ev = sim.run()
-    full = (time.process_time() - t0) / ev.sim_seconds
-    replay, _replayed, same = replay_ode_cpu_per_second(sim)
-    sim.close()
+def _repeated(sim: Rollout, seconds: float, repeat: int) -> dict[str, float | bool | list]:
+    """`repeat` rounds of (raw ODE for `seconds`, the clip under the controller, its replay) on
+    `sim`, each round in that order so that a change of the machine's load reaches all three.
+    The rates are the totals' (CPU s over simulated s); the ratios' per-round values are
+    listed too (`*_runs`), for their range."""
+    raw_cpu = full_cpu = full_sim = replay_cpu = replay_sim = 0.0
+    same = True
+    over_raw: list[float] = []
+    over_replay: list[float] = []
+    for _ in range(repeat):
+        raw = raw_ode_cpu_per_second(sim, seconds)
+        t0 = time.process_time()
+        ev = sim.run()
+        cpu = time.process_time() - t0
+        replay, replayed, same_run = replay_ode_cpu_per_second(sim)
+        raw_cpu += raw * seconds
+        full_cpu += cpu
+        full_sim += ev.sim_seconds
+        replay_cpu += replay * replayed
+        replay_sim += replayed
+        same = same and same_run
+        over_raw.append(cpu / ev.sim_seconds / raw)
+        over_replay.append(cpu / ev.sim_seconds / replay)
+    raw = raw_cpu / (seconds * repeat)
+    full = full_cpu / full_sim
+    replay = replay_cpu / replay_sim
     return {
-        "simulated_seconds": seconds,
+        "controller_simulated_seconds": full_sim / repeat,
         "raw_ode_cpu_per_sim_second": raw,
         "controller_cpu_per_sim_second": full,
         "controller_over_raw_ode": full / raw,
         "replay_ode_cpu_per_sim_second": replay,
         "controller_over_replay_ode": full / replay,
         "replay_reproduced_clip": same,
+        "repeat": repeat,
+        "controller_over_raw_ode_runs": over_raw,
+        "controller_over_replay_ode_runs": over_replay,
+    }
+
+
+def run_bench(seconds: float = 5.0, repeat: int = 1) -> dict[str, float | bool | list]:
+    """Measure both cases in this process; returns CPU seconds per simulated second and ratio.
+    `repeat` > 1: that many rounds, the rates over all of them (see `_repeated`)."""
+    sim = Rollout(_spec(seconds))
+    Rollout(_spec(0.05)).run()  # warm-up: numba compilation and caches
+    r = _repeated(sim, seconds, repeat)
+    sim.close()
+    full = r.pop("controller_cpu_per_sim_second")
+    r.pop("controller_simulated_seconds")
+    return {
+        "simulated_seconds": seconds,
+        "raw_ode_cpu_per_sim_second": r.pop("raw_ode_cpu_per_sim_second"),
+        "controller_cpu_per_sim_second": full,
+        **r,
         "paper_cpp_cpu_per_sim_second": 0.5,
         "faster_than_real_time": 1.0 / full,
     }
 
 
-def run_task_bench(spec: TaskSpec, seconds: float = 5.0) -> dict[str, float | str | int]:
+def run_task_bench(spec: TaskSpec, seconds: float = 5.0,
+                   repeat: int = 1) -> dict[str, float | str | int | bool | list]:
     """Raw ODE stepping of `spec`'s world for `seconds` against its clip under the controller
-    (no CMRT), in this process after a warm-up; CPU seconds per simulated second and ratio."""
+    (no CMRT), in this process after a warm-up; CPU seconds per simulated second and ratio.
+    A clip that falls early is short (1-3 s) and its single figure noisy: `repeat` > 1 runs
+    that many rounds and reports the rates over all of them (see `_repeated`)."""
     sim = Rollout(spec)
     sim.run()  # warm-up: numba compilation, caches, the world's first contacts
-    raw = raw_ode_cpu_per_second(sim, seconds)
-    t0 = time.process_time()
-    ev = sim.run()
-    full = (time.process_time() - t0) / ev.sim_seconds
-    replay, _replayed, same = replay_ode_cpu_per_second(sim)
+    r = _repeated(sim, seconds, repeat)
     props = len(sim.physics.props)
     sim.close()
-    return {
-        "spec": spec.name,
-        "props": props,
-        "controller_simulated_seconds": ev.sim_seconds,
-        "raw_ode_cpu_per_sim_second": raw,
-        "controller_cpu_per_sim_second": full,
-        "controller_over_raw_ode": full / raw,
-        "replay_ode_cpu_per_sim_second": replay,
-        "controller_over_replay_ode": full / replay,
-        "replay_reproduced_clip": same,
-    }
+    return {"spec": spec.name, "props": props, **r}

@@ -357,6 +357,98 @@ def step_model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole
     return lo, hi, clearance
 
 
+@njit(cache=True)
+def _model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local, heel_local,
+                toe_local, point_body, point_local, point_radius, M, h, c, cd, A_L, A_H, Js,
+                pts, sole_x):
+    """`step_model` computed straight into the given arrays (shaped as it returns them):
+    `dynamics` and `feet_terms` with the same operations in the same order, without their
+    arrays for the results, the per-point arrays of `body_point` and `point_jacobian`, and the
+    copies into the outputs. Returns (support back edge x, front edge x, lowest clearance)."""
+    nb = parent.shape[0]
+    n = q.shape[0]
+    alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
+    omega, acc = velocity_accelerations(qd, parent, p, o)
+    M[:, :] = 0.0
+    h[:] = 0.0
+    A_L[:, :] = 0.0
+    A_H[:] = 0.0  # holds the angular momentum rows about the root CoM until the end
+    mtot = 0.0
+    c[0] = 0.0
+    c[1] = 0.0
+    cols = np.empty(n, dtype=np.int64)
+    jv0 = np.empty(n)
+    jv1 = np.empty(n)
+    jw = np.empty(n)
+    for b in range(nb):
+        m = mass[b]
+        ib = inertia[b]
+        px, py = p[b, 0], p[b, 1]
+        cols[0], jv0[0], jv1[0], jw[0] = 0, 1.0, 0.0, 0.0
+        cols[1], jv0[1], jv1[1], jw[1] = 1, 0.0, 1.0, 0.0
+        cols[2], jv0[2], jv1[2], jw[2] = 2, -(py - o[0, 1]), px - o[0, 0], 1.0
+        nc = 3
+        for k in range(1, nb):
+            if path[b, k]:
+                cols[nc] = ROOT_DOF + k - 1
+                jv0[nc] = -(py - o[k, 1])
+                jv1[nc] = px - o[k, 0]
+                jw[nc] = 1.0
+                nc += 1
+        ay = acc[b, 1] + GRAVITY
+        ax = acc[b, 0]
+        dpx = px - p[0, 0]
+        dpy = py - p[0, 1]
+        for a in range(nc):
+            i = cols[a]
+            for e in range(nc):
+                j = cols[e]
+                M[i, j] += m * (jv0[a] * jv0[e] + jv1[a] * jv1[e]) + ib * jw[a] * jw[e]
+            h[i] += m * (jv0[a] * ax + jv1[a] * ay)
+            A_L[0, i] += m * jv0[a]
+            A_L[1, i] += m * jv1[a]
+            A_H[i] += m * (dpx * jv1[a] - dpy * jv0[a])
+            A_H[i] += ib * jw[a]
+        mtot += m
+        c[0] += m * px
+        c[1] += m * py
+    c[0] /= mtot
+    c[1] /= mtot
+    dx = c[0] - p[0, 0]
+    dy = c[1] - p[0, 1]
+    for i in range(n):
+        A_H[i] = A_H[i] - (dx * A_L[1, i] - dy * A_L[0, i])
+    cd[:] = (A_L @ qd) / mtot
+    # feet_terms and step_model's support and points
+    nf = feet.shape[0]
+    Js[:, :] = 0.0
+    lo = 1e9
+    hi = -1e9
+    for f in range(nf):
+        b = feet[f]
+        rx, ry = _rot(alpha[b], sole_local[f])
+        sx, sy = p[b, 0] + rx, p[b, 1] + ry
+        sole_x[f] = sx
+        rx, ry = _rot(alpha[b], heel_local[f])
+        pts[2 * f, 0], pts[2 * f, 1] = p[b, 0] + rx, p[b, 1] + ry
+        rx, ry = _rot(alpha[b], toe_local[f])
+        pts[2 * f + 1, 0], pts[2 * f + 1, 1] = p[b, 0] + rx, p[b, 1] + ry
+        Js[3 * f, 0] = 1.0
+        Js[3 * f + 1, 1] = 1.0
+        Js[3 * f, 2] = -(sy - o[0, 1])
+        Js[3 * f + 1, 2] = sx - o[0, 0]
+        Js[3 * f + 2, 2] = 1.0
+        for k in range(1, nb):
+            if path[b, k]:
+                Js[3 * f, ROOT_DOF + k - 1] = -(sy - o[k, 1])
+                Js[3 * f + 1, ROOT_DOF + k - 1] = sx - o[k, 0]
+                Js[3 * f + 2, ROOT_DOF + k - 1] = 1.0
+        lo = min(lo, pts[2 * f, 0])
+        hi = max(hi, pts[2 * f + 1, 0])
+    clearance, _ = lowest_clearance(alpha, p, point_body, point_local, point_radius)
+    return lo, hi, clearance
+
+
 class PackedModel:
     """A character's constant model arrays in three (floats, ints, the path matrix) and one
     flat output buffer with the step's model terms as views into it, for `step_model_packed`.
@@ -398,9 +490,9 @@ class PackedModel:
 @njit(cache=True)
 def step_model_packed(q, qd, floats, ints, path, out):
     """`step_model_into` with the constants and outputs packed as `PackedModel` holds them:
-    the same kernels on the same values (the unpacked arrays are views of the packed ones),
-    writing the model terms into `out` and returning (support back edge x, front edge x,
-    lowest outline clearance)."""
+    the same operations on the same values (the unpacked arrays are views of the packed
+    ones), computed straight into `out` (`_model_into`) and returning (support back edge x,
+    front edge x, lowest outline clearance)."""
     nb, nf, npt = ints[0], ints[1], ints[2]
     parent = ints[3:3 + nb]
     feet = ints[3 + nb:3 + nb + nf]
@@ -423,14 +515,27 @@ def step_model_packed(q, qd, floats, ints, path, out):
     point_local = floats[at:at + 2 * npt].reshape((npt, 2))
     at += 2 * npt
     point_radius = floats[at:at + npt]
-    (M1, h1, c1, cd1, A_L1, A_H1, Js1, pts1, sole1, lo, hi,
-     clearance) = step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
-                             heel_local, toe_local, point_body, point_local, point_radius)
-    at = 0
-    for src in (M1.ravel(), h1, c1, cd1, A_L1.ravel(), A_H1, Js1.ravel(), pts1.ravel(), sole1):
-        out[at:at + src.shape[0]] = src
-        at += src.shape[0]
-    return lo, hi, clearance
+    n = q.shape[0]
+    M = out[0:n * n].reshape((n, n))
+    at = n * n
+    h = out[at:at + n]
+    at += n
+    c = out[at:at + 2]
+    at += 2
+    cd = out[at:at + 2]
+    at += 2
+    A_L = out[at:at + 2 * n].reshape((2, n))
+    at += 2 * n
+    A_H = out[at:at + n]
+    at += n
+    Js = out[at:at + 3 * nf * n].reshape((3 * nf, n))
+    at += 3 * nf * n
+    pts = out[at:at + 4 * nf].reshape((2 * nf, 2))
+    at += 4 * nf
+    sole_x = out[at:at + nf]
+    return _model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
+                       heel_local, toe_local, point_body, point_local, point_radius, M, h, c, cd,
+                       A_L, A_H, Js, pts, sole_x)
 
 
 #: Codes of `checked_inverse_dynamics`.
@@ -535,6 +640,40 @@ def checked_inverse_dynamics_lift(M, h, Js, qdd, sole_x, points, lo, hi, mu):
         if points[i, 1] > top:
             top = points[i, 1]
     return tau, code, cop, top
+
+
+@njit(cache=True)
+def step_model_held(q, qd, floats, ints, path, out, qdd, mu, neg_limit, limit, tau):
+    """`step_model_packed`, then `checked_inverse_dynamics_lift` of the held accelerations
+    `qdd` on the model terms it wrote (every foot in stance), then the torques clamped to
+    [neg_limit, limit] as `Physics.apply_torques` clamps them, written into `tau`: one
+    compiled call for a step between QP solves. Returns (support back edge x, front edge x,
+    lowest outline clearance, wrench code, wrench CoP, highest heel or toe y)."""
+    lo, hi, clearance = step_model_packed(q, qd, floats, ints, path, out)
+    n = q.shape[0]
+    nf = ints[1]
+    # The views PackedModel.arrays() gives, in its order: M, h, c, cd, A_L, A_H, Js, pts,
+    # sole_x.
+    M = out[0:n * n].reshape((n, n))
+    at = n * n
+    h = out[at:at + n]
+    at += n + 4 + 2 * n + n  # h, c, cd, A_L, A_H
+    Js = out[at:at + 3 * nf * n].reshape((3 * nf, n))
+    at += 3 * nf * n
+    pts = out[at:at + 4 * nf].reshape((2 * nf, 2))
+    at += 4 * nf
+    sole_x = out[at:at + nf]
+    t, code, cop, top = checked_inverse_dynamics_lift(M, h, Js, qdd, sole_x, pts, lo, hi, mu)
+    for i in range(t.shape[0]):
+        # np.minimum(np.maximum(t, neg_limit), limit) element by element: numpy keeps the
+        # first operand when it compares >= (<=) or is NaN, which gives the same bits.
+        v = t[i]
+        if not (v >= neg_limit[i] or math.isnan(v)):
+            v = neg_limit[i]
+        if not (v <= limit[i] or math.isnan(v)):
+            v = limit[i]
+        tau[i] = v
+    return lo, hi, clearance, code, cop, top
 
 
 def checked_inverse_dynamics_feet(M: np.ndarray, h: np.ndarray, Js: np.ndarray,

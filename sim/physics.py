@@ -435,10 +435,13 @@ class Physics:
         q, qd = self.q, self.qd
         q[0], q[1], q[2] = x, y, math.atan2(R[3], R[0])
         qd[0], qd[1], qd[2] = vx, vy, root.getAngularVel()[2]
-        q[ROOT_DOF:] = list(map(_GET_ANGLE, self.hinges))  # no Python loop: ~1.2 us a step
-        qd[ROOT_DOF:] = list(map(_GET_ANGLE_RATE, self.hinges))
+        angles = list(map(_GET_ANGLE, self.hinges))  # no Python loop: ~1.2 us a step
         for i, zero in self.hinge_zeros:
-            q[ROOT_DOF + i] += zero
+            # Python's float sum is numpy's float64 sum (the same bits), without an array
+            # element read and write per moved zero.
+            angles[i] += zero
+        q[ROOT_DOF:] = angles
+        qd[ROOT_DOF:] = list(map(_GET_ANGLE_RATE, self.hinges))
         return q, qd
 
     def body_state(self, b: int) -> tuple[float, float, float]:
@@ -535,6 +538,17 @@ class Physics:
             raise ValueError(f"apply_torques: {len(tau)} torques for {len(self.hinges)} hinges")
         list(map(_ADD_TORQUE, self.hinges,
                  np.minimum(np.maximum(tau, self._neg_torque_limit_array), lim).tolist()))
+
+    @property
+    def torque_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(-limit, limit) per hinge (N m): the clamp of `apply_torques`, for a caller that
+        clamps in a compiled call and hands the result to `add_clamped_torques`."""
+        return self._neg_torque_limit_array, self._torque_limit_array
+
+    def add_clamped_torques(self, tau: list[float]) -> None:
+        """Hinge torques (N m, +t on the child) already clamped to `torque_bounds` as
+        `apply_torques` clamps them: `apply_torques` without its clamp and checks."""
+        list(map(_ADD_TORQUE, self.hinges, tau))
 
     def add_force(self, b: int, fx: float, fy: float = 0.0) -> None:
         """An external force (N) at body b's CoM for the next step."""
@@ -709,6 +723,12 @@ class Physics:
         out += [ContactForce(kind, a, b, pos, tuple(j.getFeedback()[0][:2]))
                 for j, kind, a, b, pos in self.prop_contacts]
         return out
+
+    def prop_contact_list(self) -> list[ContactForce]:
+        """`contact_list` without the feet's ground contacts (its tail): for a per-step
+        look at the props' contacts that need not build the feet's."""
+        return [ContactForce(kind, a, b, pos, tuple(j.getFeedback()[0][:2]))
+                for j, kind, a, b, pos in self.prop_contacts]
 
     def clear_contacts(self) -> None:
         for j, _b, _px in self.contacts:

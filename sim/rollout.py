@@ -43,6 +43,7 @@ from sim.dynamics import (
     ModelArrays,
     PackedModel,
     forward_kinematics,
+    step_model_held,
     step_model_packed,
 )
 from sim.evaluation import Evaluation
@@ -232,6 +233,15 @@ class Rollout:
         apply_torques, make_contacts, world_step = phys.apply_torques, phys.make_contacts, phys.step
         contact_forces, clear_contacts = phys.contact_forces, phys.clear_contacts
         has_props = bool(phys.props)
+        # Steps between QP solves: the model terms, the held accelerations' inverse dynamics
+        # and the torque clamp in one compiled call (`step_model_held`), when the balance
+        # controller offers it; the same torques and judgement as its `act`, bit for bit.
+        held_step = getattr(balance, "held_torque_step", None)
+        held_act = getattr(balance, "held_act", None)
+        neg_limit, limit = phys.torque_bounds
+        tau_held = np.empty(len(limit))
+        add_clamped = phys.add_clamped_torques
+        mu = getattr(balance, "mu", 0.0)
         # Lower bound of the objective at any point of the clip: the running error norm grows
         # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
         # fall scores at least F0 = sqrt(steps) x support length.
@@ -250,14 +260,21 @@ class Rollout:
                 if why is not None:
                     raise DivergenceError(f"{self.spec.name}: the simulation diverged at "
                                           f"t = {t:.3f} s ({why})")
-            lo, hi, clearance = step_model_packed(q, qd, *pargs)
-            stance = getattr(active, "stance", None)
-            if stance is not None:
-                # New arrays for the stance feet only; the full ones stay the model's buffers.
-                obs_Js, obs_pts, obs_sole, (lo, hi) = stance_terms(Js, pts, sole_x, (lo, hi),
-                                                                   stance, n_feet)
-            else:
+            held = held_step is not None and active is balance and held_step()
+            if held:
+                lo, hi, clearance, code, _cop, top = step_model_held(
+                    q, qd, *pargs, balance.qdd, mu, neg_limit, limit, tau_held)
+                stance = None
                 obs_Js, obs_pts, obs_sole = Js, pts, sole_x
+            else:
+                lo, hi, clearance = step_model_packed(q, qd, *pargs)
+                stance = getattr(active, "stance", None)
+                if stance is not None:
+                    # New arrays for the stance feet only; the full ones stay the model's.
+                    obs_Js, obs_pts, obs_sole, (lo, hi) = stance_terms(Js, pts, sole_x,
+                                                                       (lo, hi), stance, n_feet)
+                else:
+                    obs_Js, obs_pts, obs_sole = Js, pts, sole_x
             s = 0.5 * (lo + hi)
             physical = None
             if clearance < 0.0:
@@ -269,9 +286,12 @@ class Rollout:
                     fall_time, fall_reason = t, physical
                     direction = fall_direction(c, cd, s)
                 break
-            obs = Observation(q, qd, M, h, c, cd, A_L, A_H, obs_Js, obs_pts, obs_sole, (lo, hi),
-                              stance)
-            tau = active.act(obs, t)
+            if held:
+                held_act(code, top)
+                tau = None  # tau_held, clamped
+            else:
+                tau = active.act(Observation(q, qd, M, h, c, cd, A_L, A_H, obs_Js, obs_pts,
+                                             obs_sole, (lo, hi), stance), t)
             if not lost:
                 c_ref = balance.c_ref
                 if active.lost is not None:
@@ -280,12 +300,17 @@ class Rollout:
                     direction = fall_direction(c, cd, s)
                     if rec is None:
                         break
+                    obs = Observation(q, qd, M, h, c, cd, A_L, A_H, obs_Js, obs_pts, obs_sole,
+                                      (lo, hi), stance)
                     active = self.fall_controller
                     active.reset(obs)
                     tau = active.act(obs, t)
             if rec is not None and k % FRAME_EVERY == 0:
                 rec.frame(t, c, c_ref, (lo, hi))
-            apply_torques(tau)
+            if tau is None:
+                add_clamped(tau_held.tolist())
+            else:
+                apply_torques(tau)
             if events:
                 task.before_step(phys, t)
             make_contacts(pts, foot_of_point)

@@ -39,8 +39,8 @@ class PoseTrajectory:
 
     def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         q = self.standing.copy()
-        qd = np.zeros_like(q)
-        qdd = np.zeros_like(q)
+        qd = np.zeros(q.shape[0])  # zeros_like's values, without its Python wrapper
+        qdd = np.zeros(q.shape[0])
         for start, dur, j, a, b in self.segments:
             if t < start:
                 continue

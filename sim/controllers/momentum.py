@@ -201,6 +201,10 @@ class MomentumController:
         self.feet_apart = False
         #: m: a stance heel or toe this high loses balance (FOOT_LIFT_LIMIT by default).
         self.foot_lift_limit = FOOT_LIFT_LIMIT
+        # The QP's constant matrices, built once instead of at every solve (the same values).
+        self._qdd_regularisation = QDD_REGULARISATION * np.eye(self.n)
+        self._constraint_blocks: dict[int, np.ndarray] = {}
+        self._tracking: tuple[ControllerParams, np.ndarray, np.ndarray] | None = None
 
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None:
@@ -241,13 +245,31 @@ class MomentumController:
             # One compiled call for the wrench and the stance heels' and toes' highest point.
             tau, code, _cop, top = checked_inverse_dynamics_lift(
                 obs.M, obs.h, obs.Js, self.qdd, obs.sole_x, obs.points, lo, hi, self.mu)
+        self._judge(code, top)
+        return tau
+
+    def held_torque_step(self) -> bool:
+        """Whether the next `act` holds qdd* (no QP solve) and shares the support wrench by
+        least norm over every foot: its torques are then those of
+        `sim.dynamics.step_model_held` with `qdd` and `mu`, and the rollout may compute them
+        in that one compiled call with the model terms and report the wrench through
+        `held_act` instead of calling `act` (the same torques and state, bit for bit)."""
+        return self._k % self.qp_every != 0 and not self.feet_apart
+
+    def held_act(self, code: int, top: float) -> None:
+        """What `act` does after its inverse dynamics on a step `held_torque_step` allowed,
+        given the wrench code and the highest stance heel or toe `step_model_held` found."""
+        self._k += 1
+        self._judge(code, top)
+
+    def _judge(self, code: int, top: float) -> None:
+        """Count the steps with an inadmissible wrench and set `lost` (see the class)."""
         violations = self._violation_steps + 1 if code != WRENCH_OK else 0
         self._violation_steps = violations
         if code == WRENCH_NO_NORMAL_FORCE or violations * self.dt > WRENCH_VIOLATION_LIMIT:
             self.lost = WRENCH_REASONS[code]
         elif top > self.foot_lift_limit:  # stance heels and toes
             self.lost = "foot_lift"
-        return tau
 
     def _crouch_offsets(self, cmrt: Cmrt, t: float
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -304,12 +326,13 @@ class MomentumController:
                                                       strict=True))
         hq = slice(ROOT_DOF, n)
         qdd_des = prm.k_t * (q_r - q[hq]) + prm.d_t * (qd_r - qd[hq]) + qdd_r
-        w2 = prm.weight_vector(self.character) ** 2
+        w2, tracking = self._tracking_terms(prm)
         Al = A_L / m
         ah = A_H / m
-        H = prm.b_l * Al.T @ Al + prm.b_h * np.outer(ah, ah)
-        H[hq, hq] += prm.b_t * np.diag(w2)
-        H += QDD_REGULARISATION * np.eye(n)
+        # ah[:, None] * ah is np.outer's own product (its values), without its Python wrapper.
+        H = prm.b_l * Al.T @ Al + prm.b_h * (ah[:, None] * ah)
+        H[hq, hq] += tracking
+        H += self._qdd_regularisation
         rhs_c = np.zeros(Js.shape[0])
         if use_bias:
             b_L, b_H, b_S = bias()
@@ -331,7 +354,7 @@ class MomentumController:
         K[:n, :n] = H
         K[:n, n:] = Js.T
         K[n:, :n] = Js
-        K[n:, n:] = -CONSTRAINT_REGULARISATION * np.eye(k)
+        K[n:, n:] = self._constraint_regularisation(k)
         rhs = np.concatenate([g, rhs_c])
         x = np.linalg.solve(K, rhs)
         if prm.cop_box > 0.0:
@@ -340,6 +363,24 @@ class MomentumController:
                                       (lo + prm.cop_box - centre, hi - prm.cop_box - centre))
         self.qdd = x[:n]
         return self.qdd
+
+    def _tracking_terms(self, prm: ControllerParams) -> tuple[np.ndarray, np.ndarray]:
+        """(W^2, b_t diag(W^2)) for the gains `prm`: kept while the schedule returns the same
+        object (its base gains outside every window), so a QP step does not rebuild them."""
+        cached = self._tracking
+        if cached is not None and cached[0] is prm:
+            return cached[1], cached[2]
+        w2 = prm.weight_vector(self.character) ** 2
+        tracking = prm.b_t * np.diag(w2)
+        self._tracking = (prm, w2, tracking)
+        return w2, tracking
+
+    def _constraint_regularisation(self, k: int) -> np.ndarray:
+        """-CONSTRAINT_REGULARISATION I_k, built once per k."""
+        block = self._constraint_blocks.get(k)
+        if block is None:
+            block = self._constraint_blocks[k] = -CONSTRAINT_REGULARISATION * np.eye(k)
+        return block
 
     @staticmethod
     def _keep_cop_inside(K: np.ndarray, rhs: np.ndarray, x: np.ndarray, n: int,

@@ -166,7 +166,7 @@ class PunchTask(Task):
     def after_step(self, physics: Any, t: float) -> None:
         if not self.window[0] <= t <= self.window[1] + 1e-9:
             return
-        for c in physics.contact_list():
+        for c in physics.prop_contact_list():  # a hand-bag contact is a prop contact
             if c.kind != self._hand_kind or c.a != BAG:
                 continue
             hand = self.hand_at(physics, c.point)

@@ -166,7 +166,7 @@ class TireTask(Task):
     def after_step(self, physics: Any, t: float) -> None:
         if not self.released:
             return
-        for c in physics.contact_list():
+        for c in physics.prop_contact_list():  # a tire-character contact is a prop contact
             if c.kind != self._character_kind or c.a != TIRE:
                 continue
             force = (c.force[0] ** 2 + c.force[1] ** 2) ** 0.5

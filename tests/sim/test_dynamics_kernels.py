@@ -125,3 +125,43 @@ def test_packed_step_model_and_fused_inverse_dynamics_are_bit_identical(characte
         assert np.float64(cop).tobytes() == np.float64(cop2).tobytes()
         assert np.float64(top).tobytes() == np.float64(max(pts[:, 1].tolist())).tobytes()
     sim.close()
+
+
+@pytest.mark.parametrize("character", ["humanoid", "lion"])
+def test_held_step_kernel_gives_the_bits_of_the_separate_calls(character) -> None:
+    """`step_model_held` (model terms, inverse dynamics of the held qdd, torque clamp in one
+    call) writes the bytes of `step_model_packed` and returns those of
+    `checked_inverse_dynamics_lift`, and its torques are the bytes of `apply_torques`'s
+    clamp (np.minimum(np.maximum(tau, -limit), limit)), clamped torques included. (A NaN
+    cannot reach the clamp: the inverse dynamics' solve refuses non-finite input.)"""
+    from sim.dynamics import step_model_held
+    from sim.spec import parse_spec
+
+    spec = parse_spec({"name": "k", "character": {"model": character},
+                       "task": {"type": "quiet_stance"},
+                       "clip": {"preparation": 0.0, "duration": 0.01, "decay": 0.0}})
+    sim = Rollout(spec)
+    n = len(sim.q0)
+    ref_pack, pack = PackedModel(sim.arrays, n), PackedModel(sim.arrays, n)
+    neg, lim = sim.physics.torque_bounds
+    tau = np.empty(len(lim))
+    rng = np.random.default_rng(152)
+    clamped = 0
+    for i in range(300):
+        q = sim.q0 + rng.normal(0.0, 0.5, n)
+        qd = rng.normal(0.0, 3.0, n)
+        qdd = rng.normal(0.0, 5.0 if i % 3 else 500.0, n)  # large: torques past the limits
+        lo, hi, cl = step_model_packed(q, qd, *ref_pack.args())
+        M, h, _c, _cd, _al, _ah, Js, pts, sole_x = ref_pack.arrays()
+        t_ref, code_ref, cop_ref, top_ref = checked_inverse_dynamics_lift(
+            M, h, Js, qdd, sole_x, pts, lo, hi, 1.0)
+        out = step_model_held(q, qd, *pack.args(), qdd, 1.0, neg, lim, tau)
+        assert pack.out.tobytes() == ref_pack.out.tobytes()
+        assert np.array(out[:3] + out[4:]).tobytes() == np.array(
+            (lo, hi, cl, cop_ref, top_ref)).tobytes()
+        assert out[3] == code_ref
+        clip = np.minimum(np.maximum(t_ref, neg), lim)
+        assert tau.tobytes() == clip.tobytes()
+        clamped += int((clip != t_ref).sum())
+    assert clamped > 0
+    sim.close()
