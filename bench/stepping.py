@@ -101,6 +101,9 @@ def main() -> None:
                              '\'{"cop_box": 0.005, "d_l": 20}\': the spec\'s controller '
                              "overrides without stepping, the step controller's "
                              "feet_fixed_gains with it")
+        sp.add_argument("--params", default=None, metavar="JSON",
+                        help="SteppingParams fields as JSON, e.g. "
+                             '\'{"ik_hold_root_angle": true, "max_back_step_fraction": 0.45}\'')
     args = ap.parse_args()
     gains = json.loads(args.fixed_gains) if args.fixed_gains else None
     step_kw = {}
@@ -108,6 +111,9 @@ def main() -> None:
         step_kw["response_delay"] = args.delay
     if gains:
         step_kw["feet_fixed_gains"] = tuple(sorted(gains.items()))
+    if args.params:
+        step_kw.update({k: tuple(map(tuple, v)) if isinstance(v, list) else v
+                        for k, v in json.loads(args.params).items()})
     params = SteppingParams(**step_kw) if step_kw else None
     if args.cmd == "case":
         out, _ = run_case(args.force, args.duration, "backward" if args.backward else "forward",

@@ -92,9 +92,11 @@ class IkResult:
 
 def solve_ik(q0: np.ndarray, arrays: ModelArrays, limits: np.ndarray, targets: list[Target],
              dofs: list[int], tol: float = IK_TOLERANCE,
-             max_iterations: int = IK_MAX_ITERATIONS) -> IkResult:
+             max_iterations: int = IK_MAX_ITERATIONS, damping: float = IK_DAMPING) -> IkResult:
     """Coordinates q near q0 that reach the targets, moving only the coordinates `dofs`
-    (indices into q; hinge h is ROOT_DOF + h). `limits` (nh, 2) rad bounds the hinges."""
+    (indices into q; hinge h is ROOT_DOF + h). `limits` (nh, 2) rad bounds the hinges.
+    `damping` (m^2): of the damped least squares; a larger one keeps the step bounded when
+    the targets are out of reach (more targets than free coordinates, a straight knee)."""
     q = q0.copy()
     cols = np.array(dofs)
     is_hinge = cols >= ROOT_DOF
@@ -115,7 +117,7 @@ def solve_ik(q0: np.ndarray, arrays: ModelArrays, limits: np.ndarray, targets: l
         for _ in range(len(hinge_cols) + 1):
             Jd = J[:, cols[free]]
             step = np.zeros(len(cols))
-            step[free] = Jd.T @ np.linalg.solve(Jd @ Jd.T + IK_DAMPING * np.eye(len(res)), res)
+            step[free] = Jd.T @ np.linalg.solve(Jd @ Jd.T + damping * np.eye(len(res)), res)
             new = q[hinge_cols] + step[is_hinge]
             out = ((new < lo) & (q[hinge_cols] <= lo + 1e-12)) | (
                 (new > hi) & (q[hinge_cols] >= hi - 1e-12))

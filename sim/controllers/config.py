@@ -86,8 +86,9 @@ class MomentumConfig(ControllerConfig):
     planted while the capture point stays in the support, one step when it does not;
     `response_delay` (s, default 0; the stepping paper's 0.2 is an option) is how long after
     the capture point leaves the support the step starts; `feet_fixed` ({gain: value}, only with
-    stepping) overrides gains in the feet-fixed phase before a step only (e.g. `{cop_box: 0.005,
-    d_l: 20}`: 300 N for 0.1 s on the pelvis then needs no step)."""
+    stepping) overrides gains in the feet-fixed phase before a step only; absent, the step
+    controller's own default `{cop_box: 0.005, d_l: 20}` (300 N for 0.1 s on the pelvis then
+    needs no step); `{}` keeps the spec's gains there."""
 
     type: Literal["momentum"] = "momentum"
     stepping: bool = False
@@ -155,7 +156,7 @@ class MomentumConfig(ControllerConfig):
             kw: dict[str, Any] = {}
             if self.response_delay is not None:
                 kw["response_delay"] = self.response_delay
-            if self.feet_fixed:
+            if self.feet_fixed is not None:  # {}: the spec's gains
                 kw["feet_fixed_gains"] = tuple(sorted(self.feet_fixed.items()))
             step = SteppingParams(**kw)
             return SteppingController(context.character, schedule, context.trajectory,

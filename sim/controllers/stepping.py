@@ -60,7 +60,7 @@ from sim.dynamics import (
     checked_inverse_dynamics,
     forward_kinematics,
 )
-from sim.ik import Target, leg_hinges, solve_ik
+from sim.ik import IK_DAMPING, IkResult, Target, leg_hinges, solve_ik
 from sim.ipm import StepPlan, capture_point, plan_step, replan_step, step_direction
 from sim.trajectory import PoseTrajectory
 
@@ -69,6 +69,12 @@ TOUCHDOWN_HEIGHT = 0.0005
 #: rad/s: the legs' reference rates (finite differences of two IK postures) are bounded so
 #: that an IK jump near a straight knee cannot command a violent acceleration.
 MAX_REFERENCE_RATE = 15.0
+#: The feet-fixed phase's default gains over the spec's (`SteppingParams.feet_fixed_gains`):
+#: cop_box (m) and d_l (s^-1)
+FEET_FIXED_GAINS: tuple[tuple[str, float], ...] = (("cop_box", 0.005), ("d_l", 20.0))
+#: Rounds of the two-stage swing IK (CM by the stance legs, then the swing foot): the swing
+#: leg's move shifts the CM, which the second round corrects
+IK_STAGE_ROUNDS = 2
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,8 @@ class SteppingParams:
     stance_weight: float = 0.3  # tracking weight of the stance leg's hinges
     upper_weight_scale: float = 0.1  # x the other hinges' tracking weights during the swing
     max_step_fraction: float = 0.7  # longest step, as a fraction of the leg length
+    #: longest backward step, as a fraction of the leg length (0: `max_step_fraction`)
+    max_back_step_fraction: float = 0.0
     capture_offset: float = 0.0  # m: the foot lands this far short of the capture point
     touchdown_timeout: float = 0.25  # s after the planned touch-down: then balance is lost
     #: m: the stance foot's heel or toe lifted this high during the swing loses balance (the
@@ -128,10 +136,28 @@ class SteppingParams:
     landed_capture_step: bool = True
     landed_capture_margin: float = 0.05  # m
     landed_min_time: float = 0.02  # s
-    #: Gains of the feet-fixed phase before a step over the spec's, e.g. (("cop_box", 0.005),
-    #: ("d_l", 20.0)): the 300 N / 0.1 s push then needs no step; the step and the landed
-    #: controller keep the spec's gains (docs/physics.md, "Stepping"). Default: none.
-    feet_fixed_gains: tuple[tuple[str, float], ...] = ()
+    #: Gains of the feet-fixed phase before a step over the spec's: by default the QP keeps its
+    #: CoP 5 mm inside the foot and damps the CM at d_l 20, so the 300 N / 0.1 s push needs no
+    #: step (the paper's Fig. 8); () keeps the spec's gains. The step and the landed
+    #: controller keep the spec's gains (docs/physics.md, "Stepping").
+    feet_fixed_gains: tuple[tuple[str, float], ...] = FEET_FIXED_GAINS
+    #: True: the swing's IK keeps the root's measured angle (the QP tracks hinge angles only,
+    #: so a root angle chosen by the IK is not realised and the swing foot lands rotated about
+    #: the hip by the difference); False: the IK moves the root's angle too
+    ik_hold_root_angle: bool = False
+    #: The root angle the swing's IK holds (with `ik_hold_root_angle`): "measured" (each
+    #: solve's), "lift_off" (at the step's start) or "reference" (the reference posture's,
+    #: feet flat)
+    ik_root_angle: str = "measured"
+    #: s^-2, s^-1: the stance leg's tracking gains during the swing (0: the spec's k_t, d_t);
+    #: with the stance foot flat its hinges fix the root's angle, so with
+    #: `ik_hold_root_angle` these hold the pelvis where the IK put it
+    stance_stiffness: float = 0.0
+    stance_damping: float = 0.0
+    #: True: the swing's IK in two stages, as in the stepping paper: the CM by the stance legs
+    #: (and the root's position), then the swing foot by the swing leg's hinges alone
+    ik_two_stage: bool = False
+    ik_damping: float = IK_DAMPING  # m^2, the swing IK's damped least squares
 
 
 @dataclass
@@ -397,7 +423,7 @@ class SteppingController:
                        if prm.reach_from_stance else None)
         plan = plan_step(t, obs.c, obs.cd, pivot, (float(sole[0]), float(sole[1])), direction,
                          prm.step_duration, prm.clearance,
-                         prm.max_step_fraction * self.leg_length,
+                         self._max_step(direction),
                          capture_offset=prm.capture_offset, reach_from=self._reach,
                          push=self._push_for_plan())
         self._plant = [(body_point(alpha, p, int(a.feet[f]), a.sole_local[f]),
@@ -407,6 +433,7 @@ class SteppingController:
                                      c0=(float(obs.c[0]), float(obs.c[1])),
                                      cd0=(float(obs.cd[0]), float(obs.cd[1]))))
         self._plan = plan
+        self._root0 = float(obs.q[2])
         self.phase = "swing"
         self.stance = self.support_feet
         self._k = 0
@@ -439,8 +466,40 @@ class SteppingController:
         out.append(Target("angle", (0.0,), b))
         return out
 
-    def _leg_dofs(self) -> list[int]:
-        return [0, 1, 2] + [ROOT_DOF + j for leg in self.legs for j in leg]
+    def _swing_ik(self, q0: np.ndarray, t: float, dofs: list[int]) -> IkResult:
+        """The swing's whole-body IK posture at t (see `ik_two_stage`)."""
+        a = self.arrays
+        limits = self.character.limits
+        targets = self._targets(t)
+        if not self.params.ik_two_stage:
+            return solve_ik(q0, a, limits, targets, dofs, damping=self.params.ik_damping)
+        swing = [ROOT_DOF + j for j in self.legs[self.swing]]
+        body = [d for d in dofs if d not in swing]
+        q = q0
+        for _ in range(IK_STAGE_ROUNDS):
+            q = solve_ik(q, a, limits, targets[:-2], body, damping=self.params.ik_damping).q
+            q = solve_ik(q, a, limits, targets[-2:], swing, damping=self.params.ik_damping).q
+        return solve_ik(q, a, limits, targets, [0], max_iterations=0)  # (the residual only)
+
+    def _max_step(self, direction: int) -> float:
+        """m: the longest step along `direction` (+1 forward, -1 backward)."""
+        prm = self.params
+        frac = (prm.max_back_step_fraction if direction < 0 and prm.max_back_step_fraction > 0
+                else prm.max_step_fraction)
+        return frac * self.leg_length
+
+    def _root_angle_target(self, t: float) -> float:
+        """rad: the root angle the swing's IK holds (`ik_root_angle` "lift_off" or
+        "reference": the reference posture's with the stance foot flat)."""
+        if self.params.ik_root_angle == "lift_off":
+            return self._root0
+        q_r, _qd, _qdd = self.trajectory(t)
+        f = self.support_feet[0]
+        return -float(sum(q_r[j] for j in self.legs[f]))
+
+    def _leg_dofs(self, hold_root_angle: bool = False) -> list[int]:
+        root = [0, 1] if hold_root_angle else [0, 1, 2]
+        return root + [ROOT_DOF + j for leg in self.legs for j in leg]
 
     def _swing(self, obs: Observation, t: float) -> np.ndarray:
         prm = self.params
@@ -450,16 +509,19 @@ class SteppingController:
         if self._k % self.qp_every == 0:
             if self._k > 0 and prm.replan:
                 self._plan = replan_step(self._plan, t, obs.c, obs.cd,
-                                         prm.max_step_fraction * self.leg_length,
+                                         self._max_step(self._plan.direction),
                                          prm.capture_offset, self._reach,
                                          self._push_for_plan())
                 rec.replans.append((t, self._plan.land[0], self._plan.capture_at_land))
             plan = self._plan
             h = self.qp_every * self.dt
-            dofs = self._leg_dofs()
-            limits = self.character.limits
-            ik_now = solve_ik(obs.q, a, limits, self._targets(t), dofs)
-            ik_next = solve_ik(ik_now.q, a, limits, self._targets(t + h), dofs)
+            dofs = self._leg_dofs(prm.ik_hold_root_angle)
+            q_start = obs.q
+            if prm.ik_hold_root_angle and prm.ik_root_angle != "measured":
+                q_start = obs.q.copy()
+                q_start[2] = self._root_angle_target(t)
+            ik_now = self._swing_ik(q_start, t, dofs)
+            ik_next = self._swing_ik(ik_now.q, t + h, dofs)
             alpha, p, _o = forward_kinematics(ik_now.q, a.parent, a.a_par, a.a_chi)
             sole = body_point(alpha, p, int(a.feet[self.swing]), a.sole_local[self.swing])
             fx, fy = plan.foot(t)
@@ -480,6 +542,11 @@ class SteppingController:
             sw_leg = self.legs[self.swing]
             qdd_r[sw_leg] = ((prm.swing_stiffness - sp.k_t) * (q_r[sw_leg] - hq[sw_leg])
                              + (prm.swing_damping - sp.d_t) * (qd_r[sw_leg] - hqd[sw_leg]))
+            if prm.stance_stiffness > 0.0:
+                for f in self.support_feet:
+                    st = self.legs[f]
+                    qdd_r[st] += ((prm.stance_stiffness - sp.k_t) * (q_r[st] - hq[st])
+                                  + (prm.stance_damping - sp.d_t) * (qd_r[st] - hqd[st]))
             self._ref.value = (q_r, qd_r, qdd_r)
             pos, vel, acc = plan.path.state(t)
             # The ground supplies the IPM's acceleration less the push's.

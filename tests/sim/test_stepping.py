@@ -9,7 +9,7 @@ import pytest
 
 from sim.character import ROOT_DOF
 from sim.controllers.base import stance_terms
-from sim.controllers.stepping import SteppingController, SteppingParams
+from sim.controllers.stepping import FEET_FIXED_GAINS, SteppingController, SteppingParams
 from sim.dynamics import (
     GRAVITY,
     body_point,
@@ -31,8 +31,13 @@ PUSH = {"type": "push", "force": 300.0, "direction": "forward", "body": "pelvis"
 
 
 def _spec(stepping: bool, decay: float = 1.2) -> dict:
+    """The push; with stepping the feet-fixed phase keeps the spec's gains (`feet_fixed: {}`),
+    with which the feet-fixed controller loses this push and one step is taken."""
+    controller = {"type": "momentum", "stepping": stepping}
+    if stepping:
+        controller["feet_fixed"] = {}
     return {"name": "step", "clip": {"preparation": 1.0, "duration": 0.1, "decay": decay},
-            "task": PUSH, "controller": {"type": "momentum", "stepping": stepping}}
+            "task": PUSH, "controller": controller}
 
 
 @pytest.fixture(scope="module")
@@ -336,11 +341,31 @@ def test_push_estimate_at_lift_off_is_the_push_still_acting():
     assert rec.push_estimate == pytest.approx(300.0 / sim.character.total_mass, rel=0.15)
 
 
+def test_spec_default_feet_fixed_gains_are_the_step_controllers_own():
+    """Without `feet_fixed` the feet-fixed phase has the step controller's default gains
+    (CoP box 5 mm, d_l 20); `feet_fixed: {}` keeps the spec's; the swing QP keeps the spec's
+    either way."""
+    spec = _spec(True)
+    del spec["controller"]["feet_fixed"]
+    for feet_fixed, want in ((None, FEET_FIXED_GAINS), ({}, ())):
+        if feet_fixed is not None:
+            spec["controller"]["feet_fixed"] = feet_fixed
+        sim = Rollout(parse_spec(spec))
+        try:
+            ctl = sim.controller
+            fixed = ctl.feet_fixed.schedule.base
+            assert ctl.params.feet_fixed_gains == want
+            assert (fixed.cop_box, fixed.d_l) == ((0.005, 20.0) if want else (0.0, 7.0))
+            assert ctl.swing_qps[1].schedule.base.d_l == 7.0
+        finally:
+            sim.close()
+
+
 def test_feet_fixed_gains_hold_the_300_n_tenth_second_push_without_a_step():
-    """The stepping paper's Fig. 8: with the CoP kept 5 mm inside the foot by the feet-fixed QP
-    and d_l 20, 300 N for 0.1 s on the pelvis stands with no step (the default gains step)."""
-    params = SteppingParams(feet_fixed_gains=(("cop_box", 0.005), ("d_l", 20.0)))
-    sim = _push_rollout(300.0, 0.1, 1.2, params)
+    """The stepping paper's Fig. 8: with the step controller's default feet-fixed gains (the
+    CoP kept 5 mm inside the foot by the QP, d_l 20), 300 N for 0.1 s on the pelvis stands
+    with no step (with the spec's gains it steps: `stepped`)."""
+    sim = _push_rollout(300.0, 0.1, 1.2)
     try:
         ev = sim.run(None)
         steps = list(sim.controller.steps)
