@@ -42,10 +42,12 @@ convergence point (the generation --window generations before the rule fired, af
 the best never again improved by --improvement: the paper's "convergence iterations", which
 are below its 100-iteration window), to the stopping rule, to "equal quality" (evaluations
 until each run's best first reached the worse of the two final objectives) and to within 1 %
-of each run's own final best, and their medians. --reduced-start flat starts the
-reduced run from the flat spline projected into the basis box, i.e. from the full-space run's
-start. --only family / reduced stops before the reduced runs / before running missing
-full-space references (so that these can run in another process into the same --out).
+of each run's own final best, and their medians. --reduced-start flat starts the reduced run
+from the flat spline projected into the basis box, i.e. from the full-space run's start.
+--basis-from all adds every flat-start full-space run saved in --out at another mass (the
+other rows' references) to the chain's members in each row's basis. --only family / reduced
+stops before the reduced runs / before running missing full-space references (so that these
+can run in another process into the same --out).
 Prints markdown tables (for docs/benchmarks.md); --json prints the raw numbers instead.
 """
 
@@ -168,6 +170,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--reduced-start", choices=["centre", "flat"], default="centre",
                    help="reduced-space start: the box centre (about the family mean) or the "
                         "flat spline projected into the box (the full-space run's start)")
+    p.add_argument("--basis-from", choices=["family", "all"], default="family",
+                   help="PCA members: the family (every --masses member but the left-out "
+                        "mass), or all: the family and every flat-start full-space run saved "
+                        "in --out (full_m*.json: the other rows' references) at another mass")
     p.add_argument("--template", type=Path, default=TEMPLATE)
     p.add_argument("--skip-full", action="store_true",
                    help="do not optimise missing members: use only those saved in --out")
@@ -275,15 +281,23 @@ def main(argv: list[str] | None = None) -> int:
         if args.only == "family":
             args.leave_out = []
 
+        if args.basis_from == "all":  # the flat-start references saved so far join the basis
+            for file in sorted(args.out.glob("full_m*.json")):
+                r = OptimizationResult.load(file)
+                flat.setdefault(float(r.spec["task"]["mass"]), r)
         reduced: dict[float, OptimizationResult] = {}
         for mass in args.leave_out:
             others = [family[m] for m in sorted(family) if m != mass]
+            if args.basis_from == "all":
+                others += [flat[m] for m in sorted(flat)
+                           if m != mass and all(flat[m] is not r for r in others)]
             if len(others) < args.k + 1:
                 report["missing"].append(f"pca {mass:g}")
                 continue
             basis = build_basis(others, k=args.k)
             spec = member_spec(mass, args)
-            tag = "" if args.reduced_start == "centre" else "flat_"
+            tag = ("" if args.reduced_start == "centre" else "flat_") + (
+                "all_" if args.basis_from == "all" else "")
             name = (f"reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json"
                     if not args.continuation else
                     f"{prefix}reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json")
