@@ -32,7 +32,9 @@ starting points"): the masses in increasing (up) or decreasing (down) order, the
 flat spline under the main rules, each next one warm-started from the previous mass's optimum
 with a small initial step (--warm-sigma) and its own short rules (--warm-window generations at
 --warm-improvement, at most --warm-max-evaluations; no minimum), so neighbours stay on one
-branch of optima and each member is cheap. The chain is then the family for steps 2 and 3;
+branch of optima and each member is cheap. The chain is then the family for steps 2 and 3
+(--continuation both: an up and a down chain over every mass, the same files as up and down,
+and the family keeps at each mass the better of the two optima);
 the full-space references of step 2 are separate flat-start runs at the left-out masses under
 the main rules (files full_m*.json), because the chain's members started from a neighbour's
 optimum and their cost says nothing about a cold full-space search. Step 2 then reports three
@@ -154,13 +156,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--window", type=int, default=10)
     p.add_argument("--improvement", type=float, default=0.05)
     p.add_argument("--max-evaluations", type=int, default=300)
-    p.add_argument("--continuation", choices=["up", "down", "updown"],
+    p.add_argument("--continuation", choices=["up", "down", "updown", "both"],
                    help="optimise the family as a chain: masses in increasing (up) or "
                         "decreasing (down) order, the first from the flat spline under the "
                         "main rules, each next one warm-started from the previous optimum "
                         "under the --warm-* rules (files cont<dir>_s<S>_m*.json); updown: "
                         "an up chain over the masses <= --split and a down chain over the "
-                        "rest, from the flat spline at the lightest and the heaviest mass")
+                        "rest, from the flat spline at the lightest and the heaviest mass; "
+                        "both: an up and a down chain over every mass, the family keeping "
+                        "at each mass the better of the two optima")
     p.add_argument("--split", type=float, default=90.0,
                    help="with --continuation updown: the heaviest mass of the up chain (kg)")
     p.add_argument("--warm-sigma", type=float, default=0.05)
@@ -213,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
             chains = [("up", sorted(m for m in args.masses if m <= args.split)),
                       ("down", sorted((m for m in args.masses if m > args.split),
                                       reverse=True))]
+        elif args.continuation == "both":  # two chains over every mass, each from its end
+            chains = [("up", sorted(args.masses)), ("down", sorted(args.masses, reverse=True))]
         elif args.continuation:
             chains = [(args.continuation,
                        sorted(args.masses, reverse=args.continuation == "down"))]
@@ -229,18 +235,21 @@ def main(argv: list[str] | None = None) -> int:
                 if prev is None:
                     log(f"[{time.perf_counter() - t_start:.0f} s] full space (flat start), "
                         f"mass {mass:g} kg")
-                    flat[mass] = family[mass] = run_or_load(
+                    res = flat[mass] = run_or_load(
                         path(mass), member_spec(mass, args), pool, args.seed, log=log)
                     start = "flat"
                 else:
                     log(f"[{time.perf_counter() - t_start:.0f} s] continuation from "
                         f"{prev_m:g} kg, mass {mass:g} kg")
-                    family[mass] = run_or_load(
+                    res = run_or_load(
                         file, member_spec(mass, args, True),
                         pool, args.seed, x0=prev.params, log=log)
                     start = f"{prev_m:g} kg"
-                report["members"].append(member_row(family[mass], mass, start))
-                prev, prev_m = family[mass], mass
+                # with two chains over one mass (both) the family keeps the better optimum
+                if mass not in family or res.objective < family[mass].objective:
+                    family[mass] = res
+                report["members"].append(member_row(res, mass, start))
+                prev, prev_m = res, mass
         if not args.continuation:
             neighbours = [m for v in args.interpolate for m in _around(args.masses, v)]
             for mass in run_order(args.masses, args.leave_out + args.interpolate + neighbours):
