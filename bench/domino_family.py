@@ -47,9 +47,10 @@ until each run's best first reached the worse of the two final objectives) and t
 of each run's own final best, and their medians. --reduced-start flat starts the reduced run
 from the flat spline projected into the basis box, i.e. from the full-space run's start.
 --basis-from all adds every flat-start full-space run saved in --out at another mass (the
-other rows' references) to the chain's members in each row's basis. --only family / reduced
-stops before the reduced runs / before running missing full-space references (so that these
-can run in another process into the same --out).
+other rows' references) to the chain's members in each row's basis; --basis-from best keeps
+at each mass the better of the chain's member and the flat-start run saved there. --only
+family / reduced stops before the reduced runs / before running missing full-space
+references (so that these can run in another process into the same --out).
 Prints markdown tables (for docs/benchmarks.md); --json prints the raw numbers instead.
 """
 
@@ -174,10 +175,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--reduced-start", choices=["centre", "flat"], default="centre",
                    help="reduced-space start: the box centre (about the family mean) or the "
                         "flat spline projected into the box (the full-space run's start)")
-    p.add_argument("--basis-from", choices=["family", "all"], default="family",
+    p.add_argument("--basis-from", choices=["family", "all", "best"], default="family",
                    help="PCA members: the family (every --masses member but the left-out "
-                        "mass), or all: the family and every flat-start full-space run saved "
-                        "in --out (full_m*.json: the other rows' references) at another mass")
+                        "mass); all: the family and every flat-start full-space run saved "
+                        "in --out (full_m*.json: the other rows' references) at another mass; "
+                        "best: at each of --masses the better of the family member and the "
+                        "saved flat-start run (also the family interpolated from)")
     p.add_argument("--template", type=Path, default=TEMPLATE)
     p.add_argument("--skip-full", action="store_true",
                    help="do not optimise missing members: use only those saved in --out")
@@ -212,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         # member and, later, the PCA references at the left-out masses (continuation)
         flat: dict[float, OptimizationResult] = {}
         family: dict[float, OptimizationResult] = {}
+        source: dict[float, str] = {}  # where each family member came from
         prefix = f"cont{args.continuation}_s{args.warm_sigma:g}_"
         if args.continuation == "updown":  # two chains that can run in two processes
             chains = [("up", sorted(m for m in args.masses if m <= args.split)),
@@ -248,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
                 # with two chains over one mass (both) the family keeps the better optimum
                 if mass not in family or res.objective < family[mass].objective:
                     family[mass] = res
+                    source[mass] = "flat" if prev is None else f"{direction} chain"
                 report["members"].append(member_row(res, mass, start))
                 prev, prev_m = res, mass
         if not args.continuation:
@@ -261,6 +266,18 @@ def main(argv: list[str] | None = None) -> int:
                                                         pool, args.seed, log=log)
             for mass in sorted(family):
                 report["members"].append(member_row(family[mass], mass, "flat"))
+
+        if args.basis_from == "best":  # each mass's best full-space optimum, any start
+            for file in sorted(args.out.glob("full_m*.json")):
+                r = OptimizationResult.load(file)
+                m = float(r.spec["task"]["mass"])
+                flat.setdefault(m, r)
+                if m in args.masses and (m not in family
+                                         or flat[m].objective < family[m].objective):
+                    family[m] = flat[m]
+                    source[m] = "flat"
+        report["family"] = [{"mass": m, "objective": family[m].objective,
+                             "source": source.get(m, "flat")} for m in sorted(family)]
 
         def reference(mass: float) -> OptimizationResult:
             """The best full-space CMRT optimised at `mass`, whichever start it came from."""
@@ -306,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
             basis = build_basis(others, k=args.k)
             spec = member_spec(mass, args)
             tag = ("" if args.reduced_start == "centre" else "flat_") + (
-                "all_" if args.basis_from == "all" else "")
+                "" if args.basis_from == "family" else f"{args.basis_from}_")
             name = (f"reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json"
                     if not args.continuation else
                     f"{prefix}reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json")
@@ -384,6 +401,8 @@ def _print_tables(report: dict) -> None:
         print(f"| {m['mass']:g} | {m['start']} | {m['flat']:.3f} | {m['optimised']:.3f}"
               f"{' (fell)' if m['fell'] else ''} | {m['evaluations']} ({m['converged_at']}) | "
               f"{m['stop_rule']} | {m['wall_seconds']:.0f} |")
+    print("\nfamily: " + ", ".join(f"{f['mass']:g} kg {f['objective']:.3f} ({f['source']})"
+                                   for f in report.get("family", [])))
     print("\n| mass (kg) | var. expl. (k, members) | reduced: obj (evals, stop, rule conv. at, "
           "1 % conv. at) | full: obj (evals, stop, rule conv. at, 1 % conv. at) | rel. error | "
           "speed-up: rule convergence / stop / equal quality / 1 % | paper: rel. error, "
