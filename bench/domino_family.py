@@ -340,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
 
         for mass, red in reduced.items():
             if mass not in flat:
-                if args.only == "reduced" or args.skip_full:
+                if (args.only == "reduced" or args.skip_full) and not path(mass).exists():
                     report["missing"].append(f"full-space reference {mass:g}")
                     continue
                 log(f"[{time.perf_counter() - t_start:.0f} s] full space (flat start, PCA "
