@@ -71,6 +71,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bend_family import evaluations_to_converge, run_or_load  # noqa: E402
 
+from optim.cmaes import StopRules  # noqa: E402
 from optim.errors import InterpolationError  # noqa: E402
 from optim.executors import PoolExecutor  # noqa: E402
 from optim.interpolate import interpolate  # noqa: E402
@@ -137,6 +138,21 @@ def evaluations_to_rule_convergence(result: OptimizationResult, window: int) -> 
     return int(result.history[-1 - window]["evaluations"])
 
 
+def replay(result: OptimizationResult, rules: StopRules) -> tuple[int, float, int]:
+    """Where `rules` would have stopped this run (they read only the best so far and the
+    evaluation count, so the search up to there is the same): (evaluations at the stop, best
+    objective there, evaluations at the slow-convergence rule's convergence point)."""
+    hit = rules.first_stop(result.history)
+    if hit is None:  # the rules do not fire within the run: it is the run as made
+        return (int(result.evaluations), float(result.history[-1]["best_so_far"]),
+                int(result.evaluations))
+    i, rule = hit
+    h = result.history
+    converged = h[i - rules.window]["evaluations"] if rule == "slow_convergence" else \
+        h[i]["evaluations"]
+    return int(h[i]["evaluations"]), float(h[i]["best_so_far"]), int(converged)
+
+
 def run_order(masses: list[float], first: list[float]) -> list[float]:
     """The masses to optimise, those in `first` (in their order) before the rest."""
     head = [m for m in first if m in masses]
@@ -181,6 +197,10 @@ def main(argv: list[str] | None = None) -> int:
                         "in --out (full_m*.json: the other rows' references) at another mass; "
                         "best: at each of --masses the better of the family member and the "
                         "saved flat-start run (also the family interpolated from)")
+    p.add_argument("--replay-window", type=int, nargs="*", default=[],
+                   help="also report each PCA row under the slow-convergence rule with these "
+                        "windows (generations, shorter than --window), replayed exactly on "
+                        "the saved histories (optim.cmaes.StopRules.first_stop)")
     p.add_argument("--template", type=Path, default=TEMPLATE)
     p.add_argument("--skip-full", action="store_true",
                    help="do not optimise missing members: use only those saved in --out")
@@ -198,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
         lambda *a: print(*a, flush=True))
     report: dict = {"settings": {k: v for k, v in vars(args).items()
                                  if k not in ("out", "template", "json")},
-                    "members": [], "pca": [], "interpolation": [], "missing": []}
+                    "members": [], "pca": [], "replay": [], "interpolation": [],
+                    "missing": []}
 
     def path(mass: float) -> Path:
         return args.out / f"full_m{mass:g}.json"
@@ -378,12 +399,27 @@ def main(argv: list[str] | None = None) -> int:
                 "speedup_rule_converged": n_full_r / n_red_r,
                 "speedup_wall": fr.wall_seconds / red.wall_seconds,
             })
+            for w in args.replay_window:
+                rules = StopRules(min_evaluations=args.min_evaluations, window=w,
+                                  improvement=args.improvement,
+                                  max_evaluations=args.max_evaluations)
+                (n_f, f_f, c_f), (n_r, f_r, c_r) = replay(fr, rules), replay(red, rules)
+                report["replay"].append({
+                    "mass": mass, "window": w, "full": replay_row(n_f, f_f, c_f),
+                    "reduced": replay_row(n_r, f_r, c_r),
+                    "relative_error": f_r / f_f - 1.0, "speedup_stop": n_f / n_r,
+                    "speedup_rule_converged": c_f / c_r})
 
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
     _print_tables(report)
     return 0
+
+
+def replay_row(evaluations: int, objective: float, converged: int) -> dict:
+    """One run's figures under a replayed rule."""
+    return {"evaluations": evaluations, "objective": objective, "converged_at": converged}
 
 
 def _around(masses: list[float], value: float) -> list[float]:
@@ -428,6 +464,18 @@ def _print_tables(report: dict) -> None:
               f"stop {median('speedup_rule'):.2f}x, equal quality "
               f"{median('speedup_quality'):.2f}x, 1 % {median('speedup_converged'):.2f}x; "
               f"worst relative error {max(r['relative_error'] for r in report['pca']):+.1%}")
+    if report["replay"]:
+        print("\n| mass (kg) | window (generations) | reduced: obj (evals, rule conv. at) | "
+              "full: obj (evals, rule conv. at) | rel. error | speed-up: rule convergence / "
+              "stop |")
+        print("|---|---|---|---|---|---|")
+        for r in report["replay"]:
+            red, full = r["reduced"], r["full"]
+            print(f"| {r['mass']:g} | {r['window']} | {red['objective']:.3f} "
+                  f"({red['evaluations']}, {red['converged_at']}) | {full['objective']:.3f} "
+                  f"({full['evaluations']}, {full['converged_at']}) | "
+                  f"{r['relative_error']:+.1%} | {r['speedup_rule_converged']:.2f}x / "
+                  f"{r['speedup_stop']:.2f}x |")
     print("\n| mass (kg) | from (kg) | no CMRT | interpolated | optimised there | "
           "excess (target <= 10 %) |")
     print("|---|---|---|---|---|---|")
