@@ -32,17 +32,25 @@ starting points"): the masses in increasing (up) or decreasing (down) order, the
 flat spline under the main rules, each next one warm-started from the previous mass's optimum
 with a small initial step (--warm-sigma) and its own short rules (--warm-window generations at
 --warm-improvement, at most --warm-max-evaluations; no minimum), so neighbours stay on one
-branch of optima and each member is cheap. The chain is then the family for steps 2 and 3;
+branch of optima and each member is cheap. The chain is then the family for steps 2 and 3
+(--continuation both: an up and a down chain over every mass, the same files as up and down,
+and the family keeps at each mass the better of the two optima);
 the full-space references of step 2 are separate flat-start runs at the left-out masses under
 the main rules (files full_m*.json), because the chain's members started from a neighbour's
 optimum and their cost says nothing about a cold full-space search. Step 2 then reports three
 speed-ups in evaluations (the paper's is time; a clip costs about the same CPU for every
-candidate of one scene, so evaluations are the proxy): to the stopping rule, to "equal
-quality" (evaluations until each run's best first reached the worse of the two final
-objectives) and to within 1 % of each run's own final best. --reduced-start flat starts the
-reduced run from the flat spline projected into the basis box, i.e. from the full-space run's
-start. --only family / reduced stops before the reduced runs / before running missing
-full-space references (so that these can run in another process into the same --out).
+candidate of one scene, so evaluations are the proxy): to the slow-convergence rule's
+convergence point (the generation --window generations before the rule fired, after which
+the best never again improved by --improvement: the paper's "convergence iterations", which
+are below its 100-iteration window), to the stopping rule, to "equal quality" (evaluations
+until each run's best first reached the worse of the two final objectives) and to within 1 %
+of each run's own final best, and their medians. --reduced-start flat starts the reduced run
+from the flat spline projected into the basis box, i.e. from the full-space run's start.
+--basis-from all adds every flat-start full-space run saved in --out at another mass (the
+other rows' references) to the chain's members in each row's basis; --basis-from best keeps
+at each mass the better of the chain's member and the flat-start run saved there. --only
+family / reduced stops before the reduced runs / before running missing full-space
+references (so that these can run in another process into the same --out).
 Prints markdown tables (for docs/benchmarks.md); --json prints the raw numbers instead.
 """
 
@@ -63,6 +71,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bend_family import evaluations_to_converge, run_or_load  # noqa: E402
 
+from optim.cmaes import StopRules  # noqa: E402
 from optim.errors import InterpolationError  # noqa: E402
 from optim.executors import PoolExecutor  # noqa: E402
 from optim.interpolate import interpolate  # noqa: E402
@@ -118,6 +127,32 @@ def evaluations_to_reach(result: OptimizationResult, target: float) -> int | Non
     return None
 
 
+def evaluations_to_rule_convergence(result: OptimizationResult, window: int) -> int:
+    """Evaluations at the slow-convergence rule's convergence point: the generation `window`
+    generations before the one where the rule fired, after which the best never improved by
+    the rule's margin again (the paper's Table 2 "convergence iterations": its reduced runs'
+    32-163 are below its 100-iteration window, so they cannot count the window itself). A run
+    stopped by another rule (the cap) has not converged: its whole count."""
+    if result.stop_rule != "slow_convergence" or len(result.history) <= window:
+        return int(result.evaluations)
+    return int(result.history[-1 - window]["evaluations"])
+
+
+def replay(result: OptimizationResult, rules: StopRules) -> tuple[int, float, int]:
+    """Where `rules` would have stopped this run (they read only the best so far and the
+    evaluation count, so the search up to there is the same): (evaluations at the stop, best
+    objective there, evaluations at the slow-convergence rule's convergence point)."""
+    hit = rules.first_stop(result.history)
+    if hit is None:  # the rules do not fire within the run: it is the run as made
+        return (int(result.evaluations), float(result.history[-1]["best_so_far"]),
+                int(result.evaluations))
+    i, rule = hit
+    h = result.history
+    converged = h[i - rules.window]["evaluations"] if rule == "slow_convergence" else \
+        h[i]["evaluations"]
+    return int(h[i]["evaluations"]), float(h[i]["best_so_far"]), int(converged)
+
+
 def run_order(masses: list[float], first: list[float]) -> list[float]:
     """The masses to optimise, those in `first` (in their order) before the rest."""
     head = [m for m in first if m in masses]
@@ -138,13 +173,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--window", type=int, default=10)
     p.add_argument("--improvement", type=float, default=0.05)
     p.add_argument("--max-evaluations", type=int, default=300)
-    p.add_argument("--continuation", choices=["up", "down", "updown"],
+    p.add_argument("--continuation", choices=["up", "down", "updown", "both"],
                    help="optimise the family as a chain: masses in increasing (up) or "
                         "decreasing (down) order, the first from the flat spline under the "
                         "main rules, each next one warm-started from the previous optimum "
                         "under the --warm-* rules (files cont<dir>_s<S>_m*.json); updown: "
                         "an up chain over the masses <= --split and a down chain over the "
-                        "rest, from the flat spline at the lightest and the heaviest mass")
+                        "rest, from the flat spline at the lightest and the heaviest mass; "
+                        "both: an up and a down chain over every mass, the family keeping "
+                        "at each mass the better of the two optima")
     p.add_argument("--split", type=float, default=90.0,
                    help="with --continuation updown: the heaviest mass of the up chain (kg)")
     p.add_argument("--warm-sigma", type=float, default=0.05)
@@ -154,6 +191,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--reduced-start", choices=["centre", "flat"], default="centre",
                    help="reduced-space start: the box centre (about the family mean) or the "
                         "flat spline projected into the box (the full-space run's start)")
+    p.add_argument("--basis-from", choices=["family", "all", "best"], default="family",
+                   help="PCA members: the family (every --masses member but the left-out "
+                        "mass); all: the family and every flat-start full-space run saved "
+                        "in --out (full_m*.json: the other rows' references) at another mass; "
+                        "best: at each of --masses the better of the family member and the "
+                        "saved flat-start run (also the family interpolated from)")
+    p.add_argument("--replay-window", type=int, nargs="*", default=[],
+                   help="also report each PCA row under the slow-convergence rule with these "
+                        "windows (generations, shorter than --window), replayed exactly on "
+                        "the saved histories (optim.cmaes.StopRules.first_stop)")
     p.add_argument("--template", type=Path, default=TEMPLATE)
     p.add_argument("--skip-full", action="store_true",
                    help="do not optimise missing members: use only those saved in --out")
@@ -171,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
         lambda *a: print(*a, flush=True))
     report: dict = {"settings": {k: v for k, v in vars(args).items()
                                  if k not in ("out", "template", "json")},
-                    "members": [], "pca": [], "interpolation": [], "missing": []}
+                    "members": [], "pca": [], "replay": [], "interpolation": [],
+                    "missing": []}
 
     def path(mass: float) -> Path:
         return args.out / f"full_m{mass:g}.json"
@@ -188,11 +236,14 @@ def main(argv: list[str] | None = None) -> int:
         # member and, later, the PCA references at the left-out masses (continuation)
         flat: dict[float, OptimizationResult] = {}
         family: dict[float, OptimizationResult] = {}
+        source: dict[float, str] = {}  # where each family member came from
         prefix = f"cont{args.continuation}_s{args.warm_sigma:g}_"
         if args.continuation == "updown":  # two chains that can run in two processes
             chains = [("up", sorted(m for m in args.masses if m <= args.split)),
                       ("down", sorted((m for m in args.masses if m > args.split),
                                       reverse=True))]
+        elif args.continuation == "both":  # two chains over every mass, each from its end
+            chains = [("up", sorted(args.masses)), ("down", sorted(args.masses, reverse=True))]
         elif args.continuation:
             chains = [(args.continuation,
                        sorted(args.masses, reverse=args.continuation == "down"))]
@@ -209,18 +260,22 @@ def main(argv: list[str] | None = None) -> int:
                 if prev is None:
                     log(f"[{time.perf_counter() - t_start:.0f} s] full space (flat start), "
                         f"mass {mass:g} kg")
-                    flat[mass] = family[mass] = run_or_load(
+                    res = flat[mass] = run_or_load(
                         path(mass), member_spec(mass, args), pool, args.seed, log=log)
                     start = "flat"
                 else:
                     log(f"[{time.perf_counter() - t_start:.0f} s] continuation from "
                         f"{prev_m:g} kg, mass {mass:g} kg")
-                    family[mass] = run_or_load(
+                    res = run_or_load(
                         file, member_spec(mass, args, True),
                         pool, args.seed, x0=prev.params, log=log)
                     start = f"{prev_m:g} kg"
-                report["members"].append(member_row(family[mass], mass, start))
-                prev, prev_m = family[mass], mass
+                # with two chains over one mass (both) the family keeps the better optimum
+                if mass not in family or res.objective < family[mass].objective:
+                    family[mass] = res
+                    source[mass] = "flat" if prev is None else f"{direction} chain"
+                report["members"].append(member_row(res, mass, start))
+                prev, prev_m = res, mass
         if not args.continuation:
             neighbours = [m for v in args.interpolate for m in _around(args.masses, v)]
             for mass in run_order(args.masses, args.leave_out + args.interpolate + neighbours):
@@ -232,6 +287,18 @@ def main(argv: list[str] | None = None) -> int:
                                                         pool, args.seed, log=log)
             for mass in sorted(family):
                 report["members"].append(member_row(family[mass], mass, "flat"))
+
+        if args.basis_from == "best":  # each mass's best full-space optimum, any start
+            for file in sorted(args.out.glob("full_m*.json")):
+                r = OptimizationResult.load(file)
+                m = float(r.spec["task"]["mass"])
+                flat.setdefault(m, r)
+                if m in args.masses and (m not in family
+                                         or flat[m].objective < family[m].objective):
+                    family[m] = flat[m]
+                    source[m] = "flat"
+        report["family"] = [{"mass": m, "objective": family[m].objective,
+                             "source": source.get(m, "flat")} for m in sorted(family)]
 
         def reference(mass: float) -> OptimizationResult:
             """The best full-space CMRT optimised at `mass`, whichever start it came from."""
@@ -261,15 +328,23 @@ def main(argv: list[str] | None = None) -> int:
         if args.only == "family":
             args.leave_out = []
 
+        if args.basis_from == "all":  # the flat-start references saved so far join the basis
+            for file in sorted(args.out.glob("full_m*.json")):
+                r = OptimizationResult.load(file)
+                flat.setdefault(float(r.spec["task"]["mass"]), r)
         reduced: dict[float, OptimizationResult] = {}
         for mass in args.leave_out:
             others = [family[m] for m in sorted(family) if m != mass]
+            if args.basis_from == "all":
+                others += [flat[m] for m in sorted(flat)
+                           if m != mass and all(flat[m] is not r for r in others)]
             if len(others) < args.k + 1:
                 report["missing"].append(f"pca {mass:g}")
                 continue
             basis = build_basis(others, k=args.k)
             spec = member_spec(mass, args)
-            tag = "" if args.reduced_start == "centre" else "flat_"
+            tag = ("" if args.reduced_start == "centre" else "flat_") + (
+                "" if args.basis_from == "family" else f"{args.basis_from}_")
             name = (f"reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json"
                     if not args.continuation else
                     f"{prefix}reduced_{tag}k{args.k}_n{len(others)}_m{mass:g}.json")
@@ -286,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
 
         for mass, red in reduced.items():
             if mass not in flat:
-                if args.only == "reduced" or args.skip_full:
+                if (args.only == "reduced" or args.skip_full) and not path(mass).exists():
                     report["missing"].append(f"full-space reference {mass:g}")
                     continue
                 log(f"[{time.perf_counter() - t_start:.0f} s] full space (flat start, PCA "
@@ -298,6 +373,8 @@ def main(argv: list[str] | None = None) -> int:
             quality = max(fr.objective, red.objective)
             n_full_q = evaluations_to_reach(fr, quality)
             n_red_q = evaluations_to_reach(red, quality)
+            n_full_r = evaluations_to_rule_convergence(fr, args.window)
+            n_red_r = evaluations_to_rule_convergence(red, args.window)
             report["pca"].append({
                 "mass": mass, "k": args.k, "members": red.n_members,
                 "variance_explained_k": red.variance_k,
@@ -306,25 +383,43 @@ def main(argv: list[str] | None = None) -> int:
                 "reduced_evaluations": red.evaluations,
                 "reduced_converged_at": evaluations_to_converge(red),
                 "reduced_to_quality": n_red_q,
+                "reduced_rule_converged_at": n_red_r,
                 "reduced_wall_seconds": red.wall_seconds,
                 "full": fr.objective, "full_stop_rule": fr.stop_rule,
                 "full_evaluations": fr.evaluations,
                 "full_converged_at": evaluations_to_converge(fr),
                 "full_to_quality": n_full_q,
+                "full_rule_converged_at": n_full_r,
                 "full_wall_seconds": fr.wall_seconds,
                 "best_family_member": family[mass].objective if mass in family else None,
                 "relative_error": red.objective / fr.objective - 1.0,
                 "speedup_rule": fr.evaluations / red.evaluations,
                 "speedup_converged": evaluations_to_converge(fr) / evaluations_to_converge(red),
                 "speedup_quality": n_full_q / n_red_q,
+                "speedup_rule_converged": n_full_r / n_red_r,
                 "speedup_wall": fr.wall_seconds / red.wall_seconds,
             })
+            for w in args.replay_window:
+                rules = StopRules(min_evaluations=args.min_evaluations, window=w,
+                                  improvement=args.improvement,
+                                  max_evaluations=args.max_evaluations)
+                (n_f, f_f, c_f), (n_r, f_r, c_r) = replay(fr, rules), replay(red, rules)
+                report["replay"].append({
+                    "mass": mass, "window": w, "full": replay_row(n_f, f_f, c_f),
+                    "reduced": replay_row(n_r, f_r, c_r),
+                    "relative_error": f_r / f_f - 1.0, "speedup_stop": n_f / n_r,
+                    "speedup_rule_converged": c_f / c_r})
 
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
     _print_tables(report)
     return 0
+
+
+def replay_row(evaluations: int, objective: float, converged: int) -> dict:
+    """One run's figures under a replayed rule."""
+    return {"evaluations": evaluations, "objective": objective, "converged_at": converged}
 
 
 def _around(masses: list[float], value: float) -> list[float]:
@@ -342,9 +437,12 @@ def _print_tables(report: dict) -> None:
         print(f"| {m['mass']:g} | {m['start']} | {m['flat']:.3f} | {m['optimised']:.3f}"
               f"{' (fell)' if m['fell'] else ''} | {m['evaluations']} ({m['converged_at']}) | "
               f"{m['stop_rule']} | {m['wall_seconds']:.0f} |")
-    print("\n| mass (kg) | var. expl. (k, members) | reduced: obj (evals, stop, conv. at) | "
-          "full: obj (evals, stop, conv. at) | rel. error | speed-up rule / equal quality / "
-          "converged | paper: rel. error, speed-up |")
+    print("\nfamily: " + ", ".join(f"{f['mass']:g} kg {f['objective']:.3f} ({f['source']})"
+                                   for f in report.get("family", [])))
+    print("\n| mass (kg) | var. expl. (k, members) | reduced: obj (evals, stop, rule conv. at, "
+          "1 % conv. at) | full: obj (evals, stop, rule conv. at, 1 % conv. at) | rel. error | "
+          "speed-up: rule convergence / stop / equal quality / 1 % | paper: rel. error, "
+          "speed-up |")
     print("|---|---|---|---|---|---|---|")
     for r in report["pca"]:
         paper = PAPER_TABLE_2.get(int(r["mass"]))
@@ -352,11 +450,32 @@ def _print_tables(report: dict) -> None:
         print(f"| {r['mass']:g} | {r['variance_explained_k']:.1%} ({r['k']}, "
               f"{r['members']}) | {r['reduced']:.3f}{' (fell)' if r['reduced_fell'] else ''}"
               f" ({r['reduced_evaluations']}, {r.get('reduced_stop_rule', '')}, "
-              f"{r['reduced_converged_at']}) | {r['full']:.3f} ({r['full_evaluations']}, "
-              f"{r.get('full_stop_rule', '')}, {r['full_converged_at']}) | "
-              f"{r['relative_error']:+.1%} | {r['speedup_rule']:.2f}x / "
+              f"{r['reduced_rule_converged_at']}, {r['reduced_converged_at']}) | "
+              f"{r['full']:.3f} ({r['full_evaluations']}, {r.get('full_stop_rule', '')}, "
+              f"{r['full_rule_converged_at']}, {r['full_converged_at']}) | "
+              f"{r['relative_error']:+.1%} | {r['speedup_rule_converged']:.2f}x / "
+              f"{r['speedup_rule']:.2f}x / "
               f"{r.get('speedup_quality', float('nan')):.2f}x / "
               f"{r['speedup_converged']:.2f}x | {ptxt} |")
+    if report["pca"]:
+        def median(key: str) -> float:
+            return float(np.median([r[key] for r in report["pca"]]))
+        print(f"\nmedian speed-up: rule convergence {median('speedup_rule_converged'):.2f}x, "
+              f"stop {median('speedup_rule'):.2f}x, equal quality "
+              f"{median('speedup_quality'):.2f}x, 1 % {median('speedup_converged'):.2f}x; "
+              f"worst relative error {max(r['relative_error'] for r in report['pca']):+.1%}")
+    if report["replay"]:
+        print("\n| mass (kg) | window (generations) | reduced: obj (evals, rule conv. at) | "
+              "full: obj (evals, rule conv. at) | rel. error | speed-up: rule convergence / "
+              "stop |")
+        print("|---|---|---|---|---|---|")
+        for r in report["replay"]:
+            red, full = r["reduced"], r["full"]
+            print(f"| {r['mass']:g} | {r['window']} | {red['objective']:.3f} "
+                  f"({red['evaluations']}, {red['converged_at']}) | {full['objective']:.3f} "
+                  f"({full['evaluations']}, {full['converged_at']}) | "
+                  f"{r['relative_error']:+.1%} | {r['speedup_rule_converged']:.2f}x / "
+                  f"{r['speedup_stop']:.2f}x |")
     print("\n| mass (kg) | from (kg) | no CMRT | interpolated | optimised there | "
           "excess (target <= 10 %) |")
     print("|---|---|---|---|---|---|")
