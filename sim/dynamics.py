@@ -183,29 +183,23 @@ def momentum_bias(q, qd, parent, a_par, a_chi, mass, feet, sole_local):
 
 
 @njit(cache=True)
-def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
-    """Mass matrix M (n, n), bias h = C + G (n,), CoM c, its velocity, momentum rows.
-
-    Returns (M, h, alpha, p, o, omega, c, cd, A_L, A_H): A_L (2, n) maps qd to linear momentum,
-    A_H (n,) maps qd to the angular momentum about the CoM.
-
-    Body b's Jacobians are non-zero only in its own columns (x, y, root angle and the hinges
-    on its path), so only those entries are summed: a skipped term is exactly +-0 and adding
-    it changes no sum (the sums start at +0 and keep the body order), so M, h and the
-    momentum rows are the same bits as the dense sums over all n x n entries.
-    """
+def _mass_terms_into(q, qd, parent, a_par, a_chi, path, mass, inertia, M, h, c, cd, A_L, A_H):
+    """`dynamics`' terms written into the given arrays (M (n, n), h (n,), c (2,), cd (2,),
+    A_L (2, n), A_H (n,)); returns the kinematics (alpha, p, o, omega). See `dynamics` for
+    why only each body's own columns are summed."""
     nb = parent.shape[0]
     n = q.shape[0]
     alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
     omega, acc = velocity_accelerations(qd, parent, p, o)
-    M = np.zeros((n, n))
-    h = np.zeros(n)
-    A_L = np.zeros((2, n))
-    A_root = np.zeros(n)  # angular momentum about the root CoM
+    M[:, :] = 0.0
+    h[:] = 0.0
+    A_L[:, :] = 0.0
+    A_H[:] = 0.0  # holds the angular momentum rows about the root CoM until the end
     mtot = 0.0
-    c = np.zeros(2)
+    c[0] = 0.0
+    c[1] = 0.0
     cols = np.empty(n, dtype=np.int64)
-    jv0 = np.empty(n)  # Jv row x, row y and Jw of body b, in the order of `cols`
+    jv0 = np.empty(n)
     jv1 = np.empty(n)
     jw = np.empty(n)
     for b in range(nb):
@@ -235,19 +229,42 @@ def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
             h[i] += m * (jv0[a] * ax + jv1[a] * ay)
             A_L[0, i] += m * jv0[a]
             A_L[1, i] += m * jv1[a]
-            A_root[i] += m * (dpx * jv1[a] - dpy * jv0[a])
-            A_root[i] += ib * jw[a]
+            A_H[i] += m * (dpx * jv1[a] - dpy * jv0[a])
+            A_H[i] += ib * jw[a]
         mtot += m
         c[0] += m * px
         c[1] += m * py
-    c /= mtot
-    # H about the CoM = H about the root CoM - (c - p_root) x L
+    c[0] /= mtot
+    c[1] /= mtot
     dx = c[0] - p[0, 0]
     dy = c[1] - p[0, 1]
-    A_H = np.empty(n)
     for i in range(n):
-        A_H[i] = A_root[i] - (dx * A_L[1, i] - dy * A_L[0, i])
-    cd = (A_L @ qd) / mtot
+        A_H[i] = A_H[i] - (dx * A_L[1, i] - dy * A_L[0, i])
+    cd[:] = (A_L @ qd) / mtot
+    return alpha, p, o, omega
+
+
+@njit(cache=True)
+def dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
+    """Mass matrix M (n, n), bias h = C + G (n,), CoM c, its velocity, momentum rows.
+
+    Returns (M, h, alpha, p, o, omega, c, cd, A_L, A_H): A_L (2, n) maps qd to linear momentum,
+    A_H (n,) maps qd to the angular momentum about the CoM.
+
+    Body b's Jacobians are non-zero only in its own columns (x, y, root angle and the hinges
+    on its path), so only those entries are summed: a skipped term is exactly +-0 and adding
+    it changes no sum (the sums start at +0 and keep the body order), so M, h and the
+    momentum rows are the same bits as the dense sums over all n x n entries.
+    """
+    n = q.shape[0]
+    M = np.empty((n, n))
+    h = np.empty(n)
+    c = np.empty(2)
+    cd = np.empty(2)
+    A_L = np.empty((2, n))
+    A_H = np.empty(n)
+    alpha, p, o, omega = _mass_terms_into(q, qd, parent, a_par, a_chi, path, mass, inertia,
+                                          M, h, c, cd, A_L, A_H)
     return M, h, alpha, p, o, omega, c, cd, A_L, A_H
 
 
@@ -365,60 +382,9 @@ def _model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_loc
     `dynamics` and `feet_terms` with the same operations in the same order, without their
     arrays for the results, the per-point arrays of `body_point` and `point_jacobian`, and the
     copies into the outputs. Returns (support back edge x, front edge x, lowest clearance)."""
+    alpha, p, o, omega = _mass_terms_into(q, qd, parent, a_par, a_chi, path, mass, inertia,
+                                          M, h, c, cd, A_L, A_H)
     nb = parent.shape[0]
-    n = q.shape[0]
-    alpha, p, o = forward_kinematics(q, parent, a_par, a_chi)
-    omega, acc = velocity_accelerations(qd, parent, p, o)
-    M[:, :] = 0.0
-    h[:] = 0.0
-    A_L[:, :] = 0.0
-    A_H[:] = 0.0  # holds the angular momentum rows about the root CoM until the end
-    mtot = 0.0
-    c[0] = 0.0
-    c[1] = 0.0
-    cols = np.empty(n, dtype=np.int64)
-    jv0 = np.empty(n)
-    jv1 = np.empty(n)
-    jw = np.empty(n)
-    for b in range(nb):
-        m = mass[b]
-        ib = inertia[b]
-        px, py = p[b, 0], p[b, 1]
-        cols[0], jv0[0], jv1[0], jw[0] = 0, 1.0, 0.0, 0.0
-        cols[1], jv0[1], jv1[1], jw[1] = 1, 0.0, 1.0, 0.0
-        cols[2], jv0[2], jv1[2], jw[2] = 2, -(py - o[0, 1]), px - o[0, 0], 1.0
-        nc = 3
-        for k in range(1, nb):
-            if path[b, k]:
-                cols[nc] = ROOT_DOF + k - 1
-                jv0[nc] = -(py - o[k, 1])
-                jv1[nc] = px - o[k, 0]
-                jw[nc] = 1.0
-                nc += 1
-        ay = acc[b, 1] + GRAVITY
-        ax = acc[b, 0]
-        dpx = px - p[0, 0]
-        dpy = py - p[0, 1]
-        for a in range(nc):
-            i = cols[a]
-            for e in range(nc):
-                j = cols[e]
-                M[i, j] += m * (jv0[a] * jv0[e] + jv1[a] * jv1[e]) + ib * jw[a] * jw[e]
-            h[i] += m * (jv0[a] * ax + jv1[a] * ay)
-            A_L[0, i] += m * jv0[a]
-            A_L[1, i] += m * jv1[a]
-            A_H[i] += m * (dpx * jv1[a] - dpy * jv0[a])
-            A_H[i] += ib * jw[a]
-        mtot += m
-        c[0] += m * px
-        c[1] += m * py
-    c[0] /= mtot
-    c[1] /= mtot
-    dx = c[0] - p[0, 0]
-    dy = c[1] - p[0, 1]
-    for i in range(n):
-        A_H[i] = A_H[i] - (dx * A_L[1, i] - dy * A_L[0, i])
-    cd[:] = (A_L @ qd) / mtot
     # feet_terms and step_model's support and points
     nf = feet.shape[0]
     Js[:, :] = 0.0
