@@ -1,7 +1,9 @@
 """HTTP errors of the API and their translation from domain exceptions.
 
 Every error body is `{"detail": "<field>: <rule>"}` (`schemas.Problem`): 400 malformed JSON,
-401 missing or wrong API token, 404 unknown id, 409 conflicting state, 413 body too large,
+401 missing or wrong API token, 403 a state-changing request from another origin
+(`service.security`), 404 unknown id (quoted, ASCII-escaped), 409 conflicting state, 413 body
+too large,
 415 body not `application/json`, 422 a field breaking a rule. Domain exceptions (store.NotFound,
 pydantic and FastAPI validation errors) are translated here, at the HTTP edge, and nowhere else.
 """

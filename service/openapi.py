@@ -29,7 +29,8 @@ REF_PREFIX = "#/components/schemas/"
 ERRORS: dict[int, str] = {
     400: "Malformed JSON, or JSON nested deeper than the limit (service.body.MAX_JSON_DEPTH)",
     401: "Missing or wrong API token (only when CMRT_API_TOKEN is set)",
-    403: "A state-changing request a browser marked cross-site (Sec-Fetch-Site)",
+    403: "A state-changing request from another origin (its Origin is not the service's, or "
+         "Sec-Fetch-Site says cross-site or same-site)",
     404: "No such id",
     409: "The resource's state forbids it (e.g. cancelling a finished job)",
     413: "Request body larger than CMRT_MAX_BODY_BYTES",
