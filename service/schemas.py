@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.links import SIGNABLE
 from sim.spec import TaskSpec
 
 __all__ = ["TaskSpec"]
@@ -312,7 +313,10 @@ class LinkRequest(BaseModel):
     """A replay page to open without the token header."""
 
     model_config = ConfigDict(extra="forbid")
-    path: str = Field(max_length=128, description="`/jobs/{id}/replay` or `/cmrts/{id}/replay`")
+    path: str = Field(max_length=128,
+                      description="`/jobs/{id}/replay` or `/cmrts/{id}/replay` of an existing "
+                                  "job or library CMRT (id: 1-64 of A-Z a-z 0-9 . _ ~ -)",
+                      json_schema_extra={"pattern": f"^{SIGNABLE.pattern}$"})
 
 
 class LinkOut(BaseModel):

@@ -2,8 +2,10 @@
 
 Strict types: a number given as a string ("0.1") or a boolean (true) is rejected, as is an
 integer field given 4.0; every float must be finite (NaN, inf and 1e999 are rejected); unknown
-fields are rejected; strings may not hold control characters (NUL, newline, escape, ...),
-also in mapping keys. Errors name the field (pydantic's location) and the rule.
+fields are rejected; strings may not hold control characters (NUL, newline, escape, ...) nor
+the bidirectional formatting characters (U+202E RIGHT-TO-LEFT OVERRIDE and the other embeddings,
+overrides, isolates and marks, `BIDI_CONTROLS`: they reorder how a name is displayed), also in
+mapping keys. Errors name the field (pydantic's location) and the rule.
 """
 
 from __future__ import annotations
@@ -13,10 +15,19 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, field_validator
 
+#: The bidirectional formatting characters (Unicode's Bidi_Control property): a name holding
+#: one can be displayed as another (`abc\u202edcba` shows as `abcabcd`).
+BIDI_CONTROLS = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e"
+                          "\u2066\u2067\u2068\u2069")
+
+
+def _is_control(ch: str) -> bool:
+    return ch in BIDI_CONTROLS or unicodedata.category(ch) == "Cc"
+
 
 def _check_text(value: Any) -> None:
     if isinstance(value, str):
-        bad = next((ch for ch in value if unicodedata.category(ch) == "Cc"), None)
+        bad = next((ch for ch in value if _is_control(ch)), None)
         if bad is not None:
             raise ValueError(f"control character {bad!r} not allowed in text")
     elif isinstance(value, dict):

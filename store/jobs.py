@@ -142,14 +142,14 @@ class SqlJobs(SqlBase, JobRepository):
         with self._read() as s:
             job = s.get(Job, job_id)
             if job is None:
-                raise NotFound(f"job {job_id} not found")
+                raise NotFound(f"job {job_id!a} not found")
             return _job_record(job)
 
     def cancel_requested(self, job_id):
         with self._read() as s:
             flag = s.execute(select(Job.cancel_requested).where(Job.id == job_id)).scalar()
             if flag is None:
-                raise NotFound(f"job {job_id} not found")
+                raise NotFound(f"job {job_id!a} not found")
             return bool(flag)
 
     def list_jobs(self, *, status=None, family=None, limit=50, offset=0):
@@ -194,7 +194,7 @@ class SqlJobs(SqlBase, JobRepository):
             if res.rowcount == 0:
                 current = s.scalar(select(Job.status).where(Job.id == job_id))
                 if current is None:
-                    raise NotFound(f"job {job_id} not found")
+                    raise NotFound(f"job {job_id!a} not found")
                 if current != status:
                     raise InvalidTransition(job_id, current, status)
             return _job_record(s.get(Job, job_id, populate_existing=True))

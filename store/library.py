@@ -157,7 +157,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
         with self._read() as s:
             row = s.get(Cmrt, cmrt_id)
             if row is None:
-                raise NotFound(f"CMRT {cmrt_id} not found")
+                raise NotFound(f"CMRT {cmrt_id!a} not found")
             return _cmrt_record(row)
 
     def find_cmrts(self, family, params, *, tolerance=None, character=None, limit=None):
@@ -262,7 +262,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
         with self._read() as s:
             row = s.get(Basis, basis_id)
             if row is None:
-                raise NotFound(f"basis {basis_id} not found")
+                raise NotFound(f"basis {basis_id!a} not found")
             return _basis_record(row)
 
 

@@ -147,11 +147,11 @@ class SqlBase:
             select(Job).where(Job.id == job_id).with_for_update(key_share=True)
         ).one_or_none()
         if job is None:
-            raise NotFound(f"job {job_id} not found")
+            raise NotFound(f"job {job_id!a} not found")
         return job
 
     @staticmethod
     def _require_job(s: Session, job_id: str) -> None:
         if s.scalar(select(Job.id).where(Job.id == job_id)) is None:
-            raise NotFound(f"job {job_id} not found")
+            raise NotFound(f"job {job_id!a} not found")
 

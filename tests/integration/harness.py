@@ -1,8 +1,8 @@
 """Starts the services that docker-compose.yml names, for the topology tests.
 
-`make_topology(workdir, overrides)` picks the mode (CMRT_IT_MODE = compose | local; by default
-compose where a Docker engine answers `docker info`, else local). Both modes offer the same
-interface (`BaseTopology`), which is all the tests use.
+`make_topology(workdir, overrides)` picks the mode: CMRT_IT_MODE = local (the default, what
+`make test` runs, engine or not) | compose (what `make test-compose` runs; needs an engine).
+Both modes offer the same interface (`BaseTopology`), which is all the tests use.
 
 compose (`ComposeTopology`): `docker compose` runs the file itself, as a private project
   (`cmrt-it-<random>`), with a generated override file that adds the tests' settings (short
@@ -750,9 +750,9 @@ class ComposeTopology(BaseTopology):
 
 
 def make_topology(workdir: Path, overrides: dict[str, str] | None = None) -> BaseTopology:
-    """The topology for this machine: CMRT_IT_MODE (compose | local), by default compose where
-    a Docker engine answers, local otherwise."""
-    mode = os.environ.get("CMRT_IT_MODE") or ("compose" if docker_available() else "local")
+    """The topology CMRT_IT_MODE names: local (the default, whether or not an engine runs here:
+    `make test` must not change with the machine) or compose (`make test-compose`)."""
+    mode = os.environ.get("CMRT_IT_MODE") or "local"
     if mode == "compose":
         return ComposeTopology(workdir, overrides)
     if mode == "local":

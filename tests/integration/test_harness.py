@@ -115,13 +115,13 @@ def _compose_calls(calls, verb: str) -> list[list[str]]:
     return out
 
 
-def test_mode_follows_the_engine_and_the_setting(fake_docker, tmp_path, monkeypatch):
-    assert docker_available()
+def test_mode_follows_the_setting_not_the_engine(fake_docker, tmp_path, monkeypatch):
+    assert docker_available()  # an engine answers, yet the default stays local
     monkeypatch.delenv("CMRT_IT_MODE", raising=False)
-    assert isinstance(make_topology(tmp_path / "a", {}), ComposeTopology)
-    monkeypatch.setenv("CMRT_IT_MODE", "local")
     local = make_topology(tmp_path / "b", {})
     assert isinstance(local, LocalTopology)
+    monkeypatch.setenv("CMRT_IT_MODE", "compose")
+    assert isinstance(make_topology(tmp_path / "a", {}), ComposeTopology)
     assert local.worker_host is None  # nothing made (no namespace) before it is started
     monkeypatch.setenv("CMRT_IT_MODE", "swarm")
     with pytest.raises(ValueError, match="CMRT_IT_MODE"):
