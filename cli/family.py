@@ -6,7 +6,8 @@ local pool of --workers processes shared by every run), with its PCA basis and c
         [--strategy independent|continuation] [--from low|high|both|middle]
         [--warm-sigma S] [--warm KEY=VALUE ...] [--optimize KEY=VALUE ...]
         [--leave-out V ...] [--k 3] [--reduced-start neighbours|centre]
-        [--switch-threshold X] [--workers 2] [--seed 1] [--resume] [--json]
+        [--switch-threshold X] [--workers 2] [--seed 1] [--resume] [--reuse DIR ...]
+        [--json]
 
 Every finished run is kept in `F.runs/` (the --out path with `.runs`), with a checkpoint per
 active run: a killed command continues with --resume and loses nothing finished. Bad input
@@ -114,7 +115,8 @@ def cmd_family_run(args: argparse.Namespace) -> int:
         print(f"[{time.perf_counter() - t0:6.0f} s] {msg}", file=sys.stderr, flush=True)
 
     with PoolExecutor(args.workers) as pool:
-        outcome = run_family(fs, pool, state_dir, resume=args.resume, log=log)
+        outcome = run_family(fs, pool, state_dir, resume=args.resume, log=log,
+                             reuse=[Path(p) for p in args.reuse or []])
     wall, cpu = time.perf_counter() - t0, _cpu_seconds() - cpu0
     evaluations = sum(r.evaluations + 2 for r in outcome.results.values()) + len(outcome.probes)
     extra = {"cost": {
@@ -169,5 +171,8 @@ def add_parsers(sub: Any) -> None:
     r.add_argument("--out", required=True, metavar="F.json")
     r.add_argument("--resume", action="store_true",
                    help="continue the family kept in F.runs/ (the --out path with .runs)")
+    r.add_argument("--reuse", nargs="+", metavar="DIR",
+                   help="other families' .runs folders: their finished cold runs with this "
+                        "family's exact spec and seed are copied instead of run again")
     r.add_argument("--json", action="store_true", help="print the whole report as JSON")
     r.set_defaults(func=cmd_family_run)
