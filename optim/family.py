@@ -13,7 +13,8 @@ for `probes`, one batch of evaluations) with the ids of the runs it needs:
   * members. `independent`: one run per value from the flat spline (the spec's `optimize`
     rules, "the main rules"). `continuation` (the paper's "previous optimization results as
     starting points"): chains that start from the flat spline (main rules) and warm-start each
-    next value from the previous one's optimum with `warm.sigma0` and the `warm` rules.
+    next value from the previous one's optimum with `warm.sigma0` and the `warm` rules (their
+    cap at most the main rules' cap).
     `from`: low (one chain, increasing), high (decreasing), both (an increasing and a
     decreasing chain over every value; a value's member is the better of its two runs),
     middle (the middle value, then two chains outward from it). A member is ready as soon as
@@ -233,7 +234,10 @@ def member_spec(fs: FamilySpec, value: float, role: str = MAIN) -> TaskSpec:
     data["name"] = f"{fs.family}_{fs.leaf}{_vid(value)}"[:100]
     if role == WARM:
         main = OptimizeConfig.model_validate(data["optimize"])
-        data["optimize"] = {**main.model_dump(mode="json"), **fs.warm.model_dump(mode="json")}
+        warm = fs.warm.model_dump(mode="json")
+        # a warm-started member never gets more evaluations than a cold one
+        warm["max_evaluations"] = min(warm["max_evaluations"], main.max_evaluations)
+        data["optimize"] = {**main.model_dump(mode="json"), **warm}
     return parse_spec(data, f"family member {fs.param} = {_vid(value)}")
 
 
