@@ -355,9 +355,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="health check: exit 0 if a worker on this host answers a ping")
     w.set_defaults(func=cmd_worker)
 
+    from cli.family import add_parsers as add_family_parsers
     from cli.remote import add_parsers
 
     add_parsers(sub)  # submit, jobs, watch, library
+    add_family_parsers(sub)  # family run
     return p
 
 
@@ -395,8 +397,11 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as err:
         return _die(f"{err.filename}: no such file")
     except KeyboardInterrupt:
-        note = ("; the checkpoint holds every finished generation (--resume continues)"
-                if getattr(args, "command", None) == "optimize" else "")
+        note = {"optimize": "; the checkpoint holds every finished generation (--resume "
+                            "continues)",
+                "family": "; the .runs folder beside --out holds every finished run and "
+                          "the active runs' generations (--resume continues)"}.get(
+            getattr(args, "command", None), "")
         print(f"\ncmrt: interrupted{note}", file=sys.stderr)
         return 130
 

@@ -171,6 +171,16 @@ class CmrtPage(BaseModel):
     offset: int
 
 
+class LibraryFamily(BaseModel):
+    family: str
+    count: int
+
+
+class LibraryFamilies(BaseModel):
+    items: list[LibraryFamily]
+    total: int
+
+
 class BasisOut(BaseModel):
     id: str
     url: str

@@ -196,6 +196,22 @@ class CmrtRecord(CmrtEntry):
 
 
 @dataclass(frozen=True)
+class CmrtKey:
+    """What picking library CMRTs by task parameter needs, without their curves and specs:
+    `LibraryRepository.cmrt_keys`."""
+
+    id: str
+    task_parameters: dict[str, float]
+    objective: float
+    #: Number of spline knots, and whether the CMRT has vertical control values.
+    knots: int
+    vertical: bool
+    #: Whether the entry stores the spec it was optimised for (interpolation needs it).
+    has_spec: bool
+    created_at: datetime
+
+
+@dataclass(frozen=True)
 class BasisRecord:
     id: str
     family: str

@@ -13,7 +13,7 @@ from optim.interpolate import interpolate
 from optim.pca import DEFAULT_K, build_basis
 from optim.result import OptimizationResult
 from optim.spline import sample_curve
-from store import CmrtRecord, Repository
+from store import CmrtKey, CmrtRecord, Repository
 
 #: Largest number of library CMRTs read for one interpolation or basis.
 MAX_MEMBERS = 10_000
@@ -69,16 +69,17 @@ def interpolate_library(
 ) -> dict[str, Any]:
     """Interpolated CMRT of `family` at task parameter `key` = `value` among the library CMRTs
     (optionally only those whose other task parameters equal `filters`)."""
-    members = _family(repo, family)
+    keys = [k for k in repo.cmrt_keys(family)[:MAX_MEMBERS] if k.has_spec]
     if filters:
-        members = [
-            r for r in members
-            if all(abs(r.task_parameters.get(k, np.nan) - v) <= 1e-9 * max(1.0, abs(v))
-                   for k, v in filters.items())
+        keys = [
+            k for k in keys
+            if all(abs(k.task_parameters.get(n, np.nan) - v) <= 1e-9 * max(1.0, abs(v))
+                   for n, v in filters.items())
         ]
-    members = [r for r in members if key in r.task_parameters]
-    if not members:
+    keys = [k for k in keys if key in k.task_parameters]
+    if not keys:
         raise InterpolationError(f"no library CMRTs of family {family!r} with parameter {key!r}")
+    members = [repo.get_cmrt(cid) for cid in _neighbour_ids(keys, key, float(value))]
     by_id = {r.id: r for r in members}
     out = interpolate([record_to_result(r) for r in members], value, key=key,
                       extrapolate=extrapolate)
@@ -105,6 +106,38 @@ def interpolate_library(
         "vertical_values": d["vertical_values"],
         "curve": sample_curve(spline),
     }
+
+
+def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
+    """The library CMRTs `optim.interpolate.interpolate` would read among `keys` (ordered as
+    stored, newest first), so that only those are loaded with their specs and curves: at each
+    value of `key` the lowest objective (the first on ties, as `interpolate` keeps it), then
+    the sample itself or the two around `value` (at an end: the two nearest). The whole
+    family's spline layouts must agree, as `interpolate` requires of what it is given."""
+    first = keys[0]
+    for k in keys:
+        if (k.knots, k.vertical) != (first.knots, first.vertical):
+            raise InterpolationError(
+                f"result {k.id!r} has a different spline layout than {first.id!r}")
+    best: dict[float, CmrtKey] = {}
+    for k in keys:
+        v = k.task_parameters[key]
+        if v not in best or k.objective < best[v].objective:
+            best[v] = k
+    xs = sorted(best)
+    if len(xs) < 2 or not np.isfinite(value):
+        return [k.id for k in keys]  # `interpolate` gives the reason
+    if value in best:
+        other = xs[1] if xs[0] == value else xs[0]
+        return [best[value].id, best[other].id]
+    if value < xs[0]:
+        a, b = xs[0], xs[1]
+    elif value > xs[-1]:
+        a, b = xs[-2], xs[-1]
+    else:
+        j = int(np.searchsorted(xs, value))
+        a, b = xs[j - 1], xs[j]
+    return [best[a].id, best[b].id]
 
 
 def build_library_basis(repo: Repository, family: str, k: int = DEFAULT_K) -> str:

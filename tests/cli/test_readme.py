@@ -140,6 +140,7 @@ COVERED = {
     ".venv/bin/cmrt pca": "test_cli_block",
     ".venv/bin/cmrt interpolate": "test_cli_block",
     ".venv/bin/cmrt bench": "test_cli_block",
+    ".venv/bin/cmrt family run": "test_family_command",
     ".venv/bin/cmrt serve": "test_cmrt_serve_embedded",
     ".venv/bin/cmrt worker": "test_cmrt_worker",
     ".venv/bin/python bench/": "test_bench_scripts_help",
@@ -197,6 +198,23 @@ def test_cli_block(scratch):
     for replay in ("flat.html", "fast_bend.html"):  # self-contained replay files, < 1 MB
         html = (d / replay).read_text()
         assert 'id="replay-data"' in html and len(html.encode()) < 1_000_000
+
+
+def test_family_command(scratch):
+    """`cmrt family run` in every form shown, on the scratch fast bend's tiny budget; a form
+    without --resume starts afresh (its output's run folder removed first)."""
+    d = scratch
+    lines = [_strip_comment(c) for c in readme_commands()
+             if c.startswith(".venv/bin/cmrt family run")]
+    assert lines
+    for line in lines:
+        for form in _expand_optional(line):
+            out = d / re.search(r"--out (\S+)", form).group(1)
+            if "--resume" not in form:
+                shutil.rmtree(out.with_suffix(".runs"), ignore_errors=True)
+            p = _run(form, d)
+            doc = json.loads(out.read_text())
+            assert doc["checks"]["rows"] and "median speed-up" in p.stdout
 
 
 def test_bench_scripts_help(scratch):

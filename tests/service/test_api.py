@@ -36,6 +36,8 @@ def test_job_lifecycle_library_and_interpolation(client):
                                         "tolerance": 0.1}).json()
     assert [c["id"] for c in near["items"]] == [jb["cmrt_id"]]
     assert client.get("/cmrts", params={"family": "bend", "duration": 0.45}).json()["total"] == 0
+    fams = client.get("/cmrts/families").json()
+    assert fams == {"items": [{"family": "bend", "count": 2}], "total": 1}
     one = client.get(f"/cmrts/{ja['cmrt_id']}").json()
     assert one["task_parameters"] == {"duration": 0.3} and one["source"]["job_id"] == a
     assert len(one["curve"]["t"]) == len(one["curve"]["dx"]) > 10
@@ -129,8 +131,8 @@ def test_health_openapi_dashboard(client):
     assert h.status_code == 200 and h.json()["database"] == "ok"
     paths = client.get("/openapi.json").json()["paths"]
     for p in ("/jobs", "/jobs/{job_id}", "/jobs/{job_id}/generations", "/jobs/{job_id}/cancel",
-              "/cmrts", "/cmrts/{cmrt_id}", "/cmrts/interpolate", "/bases", "/bases/{basis_id}",
-              "/health"):
+              "/cmrts", "/cmrts/{cmrt_id}", "/cmrts/interpolate", "/cmrts/families", "/bases",
+              "/bases/{basis_id}", "/health"):
         assert p in paths
     pages = {"/dashboard": "jobs.js", "/dashboard/jobs/x": "job.js",
              "/dashboard/library": "library.js"}
