@@ -7,6 +7,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
+from optim.cmaes import MIN_DIMENSION
 from optim.errors import BasisError
 from optim.spline import decode, sample_curve
 from service import schemas
@@ -58,6 +59,9 @@ def _check_basis(repo: Any, basis: str, spec: Any) -> int:
         b.check_spec(spec)
     except BasisError as err:
         raise ApiError(422, f"basis: {err}") from None
+    if b.k < MIN_DIMENSION:
+        raise ApiError(422, f"basis: {basis!r} has k = {b.k} component; a search needs at least "
+                            f"{MIN_DIMENSION} (pycma's update fails on one coordinate)")
     return b.k
 
 
