@@ -178,7 +178,7 @@ def test_server_errors_are_typed_and_name_the_field(service):
         client.submit(bad)
     e = err.value
     assert e.status == 422 and e.field == "spec.clip.preparation"
-    assert "greater than or equal to 0" in e.rule and "preparation" in str(e)
+    assert "must be from 0 to 10 s, got -1.0" in e.rule and "preparation" in str(e)
     assert len(client.jobs(limit=200)) == before  # nothing stored on a 4xx
     with pytest.raises(InvalidRequestError, match="unknown task type 'juggle'"):
         client.submit({**bend("juggler"), "task": {"type": "juggle"}})
