@@ -3,7 +3,7 @@ by the API; no HTTP here)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -67,10 +67,14 @@ def interpolate_library(
     *,
     filters: Mapping[str, float] | None = None,
     extrapolate: bool = False,
+    like: Callable[[CmrtKey], bool] | None = None,
 ) -> dict[str, Any]:
     """Interpolated CMRT of `family` at task parameter `key` = `value` among the library CMRTs
-    (optionally only those whose other task parameters equal `filters`)."""
+    (optionally only those whose other task parameters equal `filters`, and those `like`
+    accepts)."""
     keys = [k for k in repo.cmrt_keys(family)[:MAX_MEMBERS] if k.has_spec]
+    if like is not None:
+        keys = [k for k in keys if like(k)]
     if filters:
         keys = [
             k for k in keys
@@ -122,10 +126,18 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
     records what it came from and the small step it is searched with."""
     params = spec.task_parameters()
     family = spec.family_name
+    character = spec.character.model_dump(mode="json")
+
+    def like(k: CmrtKey) -> bool:  # the same clip around the task window, the same character
+        return (abs(k.preparation - spec.clip.preparation) <= 1e-9
+                and abs(k.decay - spec.clip.decay) <= 1e-9 and k.character == character
+                and k.knots == spec.cmrt.knots and k.vertical == spec.cmrt.vertical)
+
     for key in sorted(params):
         filters = {k: v for k, v in params.items() if k != key}
         try:
-            out = interpolate_library(repo, family, key, params[key], filters=filters)
+            out = interpolate_library(repo, family, key, params[key], filters=filters,
+                                      like=like)
         except InterpolationError:
             continue
         vy = out["vertical_values"]

@@ -183,6 +183,9 @@ def test_a_job_near_library_members_starts_warm_unless_cold(client):
     assert cold["start"] is None
     outside = wait_job(client, _submit(client, bend_spec("far", 0.7)))
     assert outside["start"] is None  # no neighbours on both sides: the flat spline
+    other_clip = {**bend_spec("longer", 0.4), "clip": {"preparation": 0.5, "duration": 0.4,
+                                                        "decay": 0.2}}
+    assert wait_job(client, _submit(client, other_clip))["start"] is None  # not its neighbours
     r = client.post("/jobs", json={"spec": bend_spec("x", 0.4), "start": "warm"})
     assert r.status_code == 422 and r.json()["detail"].startswith("start:")
     r = client.post("/jobs", params={"start": "hot"}, json=bend_spec("x", 0.4))
