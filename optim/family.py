@@ -136,7 +136,8 @@ class FamilySpec(StrictModel):
     start_from: Literal["low", "high", "both", "middle"] = Field("both", alias="from")
     warm: WarmConfig = WarmConfig()
     leave_out: Annotated[list[float], Field(max_length=200)] = []
-    k: Annotated[int, Field(ge=1, le=16)] = 3
+    # A reduced run searches k coordinates: CMA-ES needs at least 2 (optim.cmaes.MIN_DIMENSION).
+    k: Annotated[int, Field(ge=2, le=16)] = 3
     seed: Annotated[int, Field(ge=0, lt=2**31)] = 1
     reduced_start: Literal["neighbours", "centre"] = "neighbours"
     switch_threshold: Annotated[float, Field(gt=0.0, le=1.0)] = SWITCH_THRESHOLD

@@ -24,7 +24,17 @@ from cmrt.settings import Settings, get_settings
 from service.deps import Services, no_nul
 from service.errors import install_error_handlers
 from service.openapi import install_openapi
-from service.routers import bases, cmrts, health, jobs, links, pages, replays, simulations
+from service.routers import (
+    bases,
+    cmrts,
+    families,
+    health,
+    jobs,
+    links,
+    pages,
+    replays,
+    simulations,
+)
 from service.security import HttpEdge
 from service.simulations import SimulationPool
 from store import Repository, open_repository
@@ -75,7 +85,7 @@ def create_app(
     app.state.services = svc
     install_error_handlers(app)
     install_openapi(app, settings)
-    for module in (jobs, cmrts, bases, simulations, replays, links, health, pages):
+    for module in (jobs, families, cmrts, bases, simulations, replays, links, health, pages):
         app.include_router(module.router)
     static = resources.files("service").joinpath("static")
     app.mount("/static", StaticFiles(directory=str(static)), name="static")

@@ -58,7 +58,7 @@ def validation_message(errors: Iterable[Mapping[str, Any]], drop: tuple[str, ...
     parts = []
     for e in errors:
         loc = ".".join(str(p) for p in error_location(e["loc"]) if p not in drop)
-        parts.append(f"{loc or 'body'}: {e['msg']}")
+        parts.append(f"{loc or 'body'}: {e['msg'].removeprefix('Value error, ')}")
     return "; ".join(parts)
 
 

@@ -10,10 +10,14 @@ mapping keys. Errors name the field (pydantic's location) and the rule.
 
 from __future__ import annotations
 
+import math
 import unicodedata
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
+
+#: Smallest size of a nonzero quantity (in its own unit).
+MIN_MAGNITUDE = 1e-9
 
 #: The bidirectional formatting characters (Unicode's Bidi_Control property): a name holding
 #: one can be displayed as another (`abc\u202edcba` shows as `abcabcd`).
@@ -50,3 +54,37 @@ class StrictModel(BaseModel):
         if not isinstance(value, BaseModel):
             _check_text(value)
         return value
+
+
+def _shown(v: float) -> str:
+    """A number for a message (an integer of hundreds of digits is not printed whole)."""
+    if isinstance(v, int) and abs(v) >= 10**15:
+        return f"an integer of {len(str(abs(v)))} digits"
+    return repr(v)
+
+
+def quantity_rule(lo: float, hi: float, unit: str) -> str:
+    """The words of a quantity's range: `from 0.05 to 50 kg`."""
+    return f"from {lo:g} to {hi:g}{' ' + unit if unit else ' (no unit)'}"
+
+
+def quantity(lo: float, hi: float, unit: str) -> Any:
+    """The type of a quantity in [lo, hi] `unit` (see the module docstring): a strict finite
+    float (an int is accepted as a float), 0 or at least `MIN_MAGNITUDE` in size."""
+    rule = quantity_rule(lo, hi, unit)
+
+    def check(v: Any) -> Any:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            return v  # the strict float type reports it
+        if isinstance(v, float) and not math.isfinite(v):
+            return v  # allow_inf_nan reports it
+        if not lo <= v <= hi:
+            raise ValueError(f"must be {rule}, got {_shown(v)}")
+        if v != 0 and abs(v) < MIN_MAGNITUDE:
+            raise ValueError(f"must be 0 or at least {MIN_MAGNITUDE:g} in size ({rule}), "
+                             f"got {_shown(v)}")
+        return v
+
+    small = f"; 0 or at least {MIN_MAGNITUDE:g} in size" if lo <= 0 <= hi else ""
+    return Annotated[float, Field(ge=lo, le=hi, description=rule + small),
+                     BeforeValidator(check)]

@@ -68,7 +68,7 @@ def _job_record(j: Job) -> JobRecord:
         finished_at=j.finished_at, best_objective=j.best_objective, best_params=j.best_params,
         evaluations=j.evaluations, iterations=j.iterations,
         cancel_requested=bool(j.cancel_requested), driver_owner=j.driver_owner,
-        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at,
+        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at, start=j.start,
     )  # fmt: skip
 
 
