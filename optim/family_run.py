@@ -13,6 +13,9 @@
     run resumes (`resume=True`) with every finished run reused and every active one continued
     from its last generation, and gives the same family as an uninterrupted run (every run is
     deterministic in its spec, seed, start and basis; evaluations are deterministic).
+  * `reuse`: state folders of other families; a cold run of this plan (from the flat spline,
+    main rules) whose exact spec and seed a finished cold run there has is the same
+    computation, so its result is copied instead of run (logged).
   * candidates are never cut early (`optimize(cut=False)`): the pool's early-stop bound is
     one slot shared by every batch in flight.
 Objectives are `SimObjective` of the member's spec under the main rules (one simulator per
@@ -39,6 +42,7 @@ from optim.family import (
     FamilySpec,
     family_members,
     member_spec,
+    parse_family,
     plan_runs,
     probe_points,
     ready_runs,
@@ -104,6 +108,40 @@ def load_finished(
     return results, probes
 
 
+def finished_cold_runs(others: list[Path]) -> list[OptimizationResult]:
+    """The finished cold runs (flat spline, main rules) of other families' state folders."""
+    found: list[OptimizationResult] = []
+    for other in others:
+        try:
+            ofs = parse_family(json.loads((Path(other) / STATE_FILE).read_text()),
+                               f"{other}/{STATE_FILE}")
+        except OSError as err:
+            raise CheckpointError(f"{other}: not a family run folder ({err.strerror})") from None
+        oruns = plan_runs(ofs)
+        done, _ = load_finished(Path(other), oruns)
+        found += [done[r.id] for r in oruns if r.cold and r.id in done]
+    return found
+
+
+def reuse_cold_runs(
+    fs: FamilySpec, runs: list[FamilyRun], results: dict[str, OptimizationResult],
+    state_dir: Path, found: list[OptimizationResult], log: Log,
+) -> None:
+    """Copy into state_dir each of `found` that is the same computation as a cold run of this
+    plan not finished yet (the same spec, rules included, and the same seed)."""
+    for r in runs:
+        if not r.cold or r.id in results:
+            continue
+        assert r.value is not None
+        want = member_spec(fs, r.value).model_dump(mode="json")
+        for res in found:
+            if res.spec == want and res.seed == fs.seed and res.basis_id is None:
+                res.save(state_dir / f"{r.id}.json")
+                results[r.id] = res
+                log(f"reuse {r.id}: {res.objective:.4f}, {res.evaluations} evaluations")
+                break
+
+
 def run_family(
     fs: FamilySpec,
     executor: Executor,
@@ -113,13 +151,16 @@ def run_family(
     max_active: int | None = None,
     objective_for: ObjectiveFor = default_objective,
     log: Log | None = None,
+    reuse: list[Path] | None = None,
 ) -> FamilyOutcome:
     """Run every run of the family not finished yet (see module docstring)."""
     t0 = time.perf_counter()
     state_dir = Path(state_dir)
+    found = finished_cold_runs([Path(p) for p in reuse or []])  # read before writing
     _check_state(fs, state_dir, resume)
     runs = plan_runs(fs)
     results, probes = load_finished(state_dir, runs)
+    reuse_cold_runs(fs, runs, results, state_dir, found, log or (lambda _msg: None))
     done = set(results) | ({PROBES} if probes is not None else set())
     cap = max_active or max(2, min(executor.workers + 1, SIMULATOR_CACHE_SIZE))
     stop = threading.Event()

@@ -50,12 +50,17 @@ class Problem(BaseModel):
 
 
 class JobRequest(BaseModel):
-    """A bare TaskSpec, or this envelope with a seed and/or a PCA basis to search in."""
+    """A bare TaskSpec, or this envelope with a seed, a PCA basis to search in, and where the
+    search starts."""
 
     model_config = ConfigDict(extra="forbid")
     spec: TaskSpec
     seed: Annotated[int, Field(ge=0, lt=2**31)] | None = None
     basis: Annotated[str, Field(max_length=64)] | None = None
+    start: Literal["library", "cold"] = Field(
+        "library", description="library: from the library's CMRT at the spec's task "
+        "parameters when it has one (interpolated between neighbours or stored there), with a "
+        "small step; cold: from the flat spline")
 
 
 class JobBudget(BaseModel):

@@ -217,7 +217,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
         # JSON columns keep a Python None as the JSON text `null`, not SQL NULL.
         has_spec = and_(Cmrt.spec.is_not(None), cast(Cmrt.spec, Text) != "null")
         q = (select(Cmrt.id, Cmrt.task_parameters, Cmrt.objective, Cmrt.knots, Cmrt.values,
-                    has_spec, Cmrt.created_at)
+                    has_spec, Cmrt.created_at, Cmrt.preparation, Cmrt.decay, Cmrt.character)
              .where(Cmrt.family == family).order_by(Cmrt.created_at.desc(), Cmrt.id))
         with self._read() as s:
             rows = s.execute(q).all()
@@ -225,8 +225,9 @@ class SqlLibrary(SqlBase, LibraryRepository):
             CmrtKey(id=cid, task_parameters={k: float(v) for k, v in tp.items()},
                     objective=float(obj), knots=len(knots),
                     vertical=bool(values) and isinstance(values[0], list),
-                    has_spec=bool(spec), created_at=created)
-            for cid, tp, obj, knots, values, spec, created in rows
+                    has_spec=bool(spec), created_at=created, preparation=float(prep),
+                    decay=float(dec), character=character)
+            for cid, tp, obj, knots, values, spec, created, prep, dec, character in rows
         ]
 
     def cmrt_families(self):

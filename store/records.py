@@ -238,6 +238,10 @@ class CmrtKey:
     #: Whether the entry stores the spec it was optimised for (interpolation needs it).
     has_spec: bool
     created_at: datetime
+    #: The clip around the task window (s) and the character, which interpolation keeps equal.
+    preparation: float = 0.0
+    decay: float = 0.0
+    character: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)

@@ -197,6 +197,15 @@ class StoreRunState:
             d.on_generation(generation)
 
 
+def _with_start_sigma(spec: TaskSpec, start: dict[str, Any] | None) -> TaskSpec:
+    """The spec whose optimizer starts the job: a start may set a smaller initial step
+    (`sigma0`, box units) than the spec's, as a start from the library does."""
+    if not start or start.get("sigma0") is None:
+        return spec
+    opt = spec.optimize.model_copy(update={"sigma0": float(start["sigma0"])})
+    return spec.model_copy(update={"optimize": opt})
+
+
 class JobDriver:
     def __init__(
         self,
@@ -313,7 +322,8 @@ class JobDriver:
         self.space = self._space(job, spec)
         state = StoreRunState(self)
         opt = state.restore() or new_optimizer(
-            spec, self.space, int(job.seed if job.seed is not None else 0))
+            _with_start_sigma(spec, job.start), self.space,
+            int(job.seed if job.seed is not None else 0))
         if self._took_over is not None:
             self._log_takeover(opt.iterations)
         t_job = time.monotonic()
