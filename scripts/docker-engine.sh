@@ -27,8 +27,16 @@ if docker info >/dev/null 2>&1; then
     exit 0
 fi
 echo "docker-engine: starting dockerd (log: /var/log/cmrt-dockerd.log)"
-# setsid: the daemon outlives this script and the CI step that ran it.
-$SUDO setsid dockerd >>/var/log/cmrt-dockerd.log 2>&1 < /dev/null &
+# setsid: the daemon outlives this script and the CI step that ran it. Without any descriptor
+# this script inherited beyond 0-2: a daemon holding, say, a `flock` lock's descriptor would
+# hold that lock for as long as it runs.
+(
+    for fd in /proc/$BASHPID/fd/*; do
+        fd=${fd##*/}
+        [ "$fd" -gt 2 ] && eval "exec $fd>&-"
+    done
+    exec $SUDO setsid dockerd >>/var/log/cmrt-dockerd.log 2>&1 < /dev/null
+) &
 for _ in $(seq 60); do
     docker info >/dev/null 2>&1 && exit 0
     sleep 1

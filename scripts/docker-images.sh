@@ -39,26 +39,52 @@ fresh() {  # fresh IMAGE KEY: true if IMAGE exists, built from KEY
     [ "${CMRT_IMAGES_REBUILD:-0}" != 1 ] && [ "$(image_key "$1")" = "$2" ]
 }
 say() { echo "docker-images: $*"; }
+drop() {  # drop OLD_ID IMAGE: the image IMAGE's new build replaced, unless it is the same one
+    # or something still uses it
+    [ -z "$1" ] || [ "$1" = "$(image_id "$2")" ] || docker image rm "$1" >/dev/null 2>&1 || true
+}
 
 # -- the base: a Debian root file system by debootstrap, imported -------------------------------
-key=$(printf '%s\n' "debootstrap --variant=minbase $SUITE $MIRROR" \
-      "$(hash_of scripts/docker-images.sh)" | sha256sum | cut -c1-16)
+make_rootfs() {  # make_rootfs DIR: the base's files (its key is this function's text)
+    local root=$1
+    debootstrap --variant=minbase "$SUITE" "$root" "$MIRROR" >"$root.log" 2>&1 \
+        || { tail -20 "$root.log" >&2; return 1; }
+    rm -f "$root.log"
+    # as the official slim image: no package lists, caches or downloaded packages kept, and
+    # none kept by later apt-get runs; no manuals or translations installed
+    cat > "$root"/etc/apt/apt.conf.d/docker-clean <<'CONF'
+DPkg::Post-Invoke { "rm -f /var/cache/apt/archives/*.deb /var/cache/apt/archives/partial/*.deb /var/cache/apt/*.bin || true"; };
+APT::Update::Post-Invoke { "rm -f /var/cache/apt/archives/*.deb /var/cache/apt/archives/partial/*.deb /var/cache/apt/*.bin || true"; };
+Dir::Cache::pkgcache "";
+Dir::Cache::srcpkgcache "";
+CONF
+    echo 'Acquire::Languages "none";' > "$root"/etc/apt/apt.conf.d/docker-no-languages
+    cat > "$root"/etc/dpkg/dpkg.cfg.d/docker-excludes <<'CONF'
+path-exclude /usr/share/doc/*
+path-include /usr/share/doc/*/copyright
+path-exclude /usr/share/man/*
+path-exclude /usr/share/info/*
+path-exclude /usr/share/locale/*
+CONF
+    rm -rf "$root"/var/lib/apt/lists/* "$root"/var/cache/apt/*.bin \
+        "$root"/var/cache/apt/archives/*.deb "$root"/usr/share/man/* "$root"/usr/share/info/* \
+        "$root"/usr/share/locale/*
+    find "$root"/usr/share/doc -type f ! -name copyright -delete
+}
+key=$(printf '%s\n' "$SUITE $MIRROR" "$(declare -f make_rootfs)" | sha256sum | cut -c1-16)
 if fresh "$BASE" "$key"; then
     say "$BASE up to date"
 else
     say "building $BASE (debootstrap --variant=minbase $SUITE)"
+    old=$(image_id "$BASE" 2>/dev/null || true)
     root=$(mktemp -d /var/tmp/cmrt-rootfs.XXXXXX)
-    trap 'rm -rf "$root"' EXIT
-    debootstrap --variant=minbase "$SUITE" "$root" "$MIRROR" >"$root.log" 2>&1 \
-        || { tail -20 "$root.log" >&2; exit 1; }
-    rm -f "$root.log"
-    # as the official slim image: no package lists or caches kept, no manuals
-    rm -rf "$root"/var/lib/apt/lists/* "$root"/var/cache/apt/*.bin "$root"/usr/share/doc/* \
-        "$root"/usr/share/man/*
+    trap 'rm -rf "$root" "$root.log"' EXIT
+    make_rootfs "$root"
     tar -C "$root" -c . | docker import \
         -c "LABEL $LABEL=$key" -c 'CMD ["bash"]' -c 'ENV LANG=C.UTF-8' - "$BASE" >/dev/null
     rm -rf "$root"
     trap - EXIT
+    drop "$old" "$BASE"
 fi
 base_id=$(image_id "$BASE")
 
@@ -72,8 +98,10 @@ build_service() {  # build_service IMAGE NAME: scripts/images/NAME.Dockerfile on
         return
     fi
     say "building $image"
+    old=$(image_id "$image" 2>/dev/null || true)
     docker build -q --network host --build-arg BASE_IMAGE="$BASE" --label "$LABEL=$k" \
         -f scripts/images/"$name".Dockerfile -t "$image" scripts/images >/dev/null
+    drop "$old" "$image"
 }
 build_service "$REDIS" redis
 build_service "$POSTGRES" postgres
@@ -86,9 +114,10 @@ p = tomllib.load(open("pyproject.toml", "rb"))
 print("\n".join(p["build-system"]["requires"] + p["project"]["dependencies"]))
 EOF
 )
-pins=$("$PY" -m pip freeze --exclude-editable --all 2>/dev/null | grep '==' || true)
+# (not the build backend: .venv's own setuptools is whatever its venv started with)
+pins=$("$PY" -m pip freeze --exclude-editable 2>/dev/null | grep '==' || true)
 wkey=$(printf '%s\n' "$reqs" "$pins" "$("$PY" -c 'import sys; print(sys.version_info[:2])')" \
-       | sha256sum | cut -c1-16)
+       "$(hash_of scripts/images/wheelhouse_fill.py)" | sha256sum | cut -c1-16)
 if [ -f .wheelhouse/.key ] && [ "$(cat .wheelhouse/.key)" = "$wkey" ] \
         && [ "${CMRT_IMAGES_REBUILD:-0}" != 1 ]; then
     say "wheelhouse up to date ($(ls .wheelhouse/*.whl | wc -l) wheels)"
@@ -98,7 +127,14 @@ else
     printf '%s\n' "$reqs" > .wheelhouse/requirements.txt
     printf '%s\n' "$pins" > .wheelhouse/constraints.txt
     "$PY" -m pip wheel -q --wheel-dir .wheelhouse -r .wheelhouse/requirements.txt \
-        -c .wheelhouse/constraints.txt
+        -c .wheelhouse/constraints.txt 2>&1 | grep -v "^WARNING: Location" || true
+    ls .wheelhouse/*.whl >/dev/null
+    # pip resolved the environment markers for this machine's Python; the image runs Debian's
+    # (e.g. redis needs async-timeout below 3.11.3): add what that one needs as well
+    image_py=$(apt-cache show python3.11 2>/dev/null | sed -n 's/^Version: \([0-9.]*\).*/\1/p' \
+               | head -1)
+    "$PY" scripts/images/wheelhouse_fill.py .wheelhouse "${image_py:-3.11.2}" \
+        .wheelhouse/constraints.txt
     rm .wheelhouse/requirements.txt .wheelhouse/constraints.txt
     echo "$wkey" > .wheelhouse/.key
 fi
@@ -114,10 +150,12 @@ if [ "${CMRT_IMAGES_REBUILD:-0}" != 1 ] && [ -f "$state" ] \
     say "$APP up to date"
 else
     say "building $APP"
+    old=$(image_id "$APP" 2>/dev/null || true)
     docker build -q --network host --build-arg BASE_IMAGE="$BASE" -t "$APP" . >/dev/null
+    drop "$old" "$APP"
     echo "$akey $(image_id "$APP")" > "$state"
 fi
 
 say "done in $(( $(date +%s) - T0 )) s:"
-docker image ls --format '  {{.Repository}}:{{.Tag}}  {{.Size}}' \
-    | grep -E "^  ($BASE|$REDIS|$POSTGRES|$APP) " || true
+docker image ls --format '{{.Repository}}:{{.Tag}} {{.Size}}' \
+    | grep -E "^($BASE|$REDIS|$POSTGRES|$APP) " | sed 's/^/  /' || true

@@ -23,10 +23,15 @@ if [ ! -s "$PGDATA/PG_VERSION" ]; then
         exit 1
     fi
     pw=()
-    [ -z "${POSTGRES_PASSWORD:-}" ] || pw=(--pwfile=<(printf '%s\n' "$POSTGRES_PASSWORD"))
+    if [ -n "${POSTGRES_PASSWORD:-}" ]; then  # a file only initdb reads, gone right after
+        pwfile=$(mktemp)
+        printf '%s\n' "$POSTGRES_PASSWORD" > "$pwfile"
+        pw=(--pwfile="$pwfile")
+    fi
     # shellcheck disable=SC2086 # POSTGRES_INITDB_ARGS is a list of options, as officially
     initdb --username="$POSTGRES_USER" "${pw[@]}" --auth-local=trust --auth-host="$AUTH" \
         ${POSTGRES_INITDB_ARGS:-} >/dev/null
+    rm -f "${pwfile:-}"
     printf '\nhost all all all %s\n' "$AUTH" >> "$PGDATA/pg_hba.conf"
     # set up on a private socket only, so that no client (nor the health check) sees the
     # server before the database exists
