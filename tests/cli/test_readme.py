@@ -142,6 +142,7 @@ COVERED = {
     ".venv/bin/cmrt bench": "test_cli_block",
     ".venv/bin/cmrt family run": "test_family_command",
     ".venv/bin/cmrt family submit": "test_client_commands",
+    ".venv/bin/cmrt driver": "tests/cli/test_driver_process.py",
     ".venv/bin/cmrt family show": "test_client_commands",
     ".venv/bin/cmrt family watch": "test_client_commands",
     ".venv/bin/cmrt serve": "test_cmrt_serve_embedded",
