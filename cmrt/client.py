@@ -290,6 +290,56 @@ class Job:
             time.sleep(poll)
 
 
+class Family:
+    """A family of the service (POST /families). `data` is the last body fetched."""
+
+    def __init__(self, client: Client, family_id: str, data: Mapping[str, Any] | None = None,
+                 budget: Mapping[str, Any] | None = None) -> None:
+        self.client = client
+        self.id = family_id
+        self.data: dict[str, Any] = dict(data or {})
+        #: The 202's budget (submit only): the most evaluations and simulated seconds in all.
+        self.budget = dict(budget) if budget else None
+
+    def __repr__(self) -> str:
+        return f"Family({self.id!r}, status={self.data.get('status')!r})"
+
+    @property
+    def url(self) -> str:
+        return f"{self.client.url}/families/{self.id}"
+
+    def refresh(self, curves: bool = False) -> dict[str, Any]:
+        """Fetch the family: status, progress, runs and their jobs; once done its members,
+        basis and checks (`curves=True`: each run's [evaluations, best so far])."""
+        self.data = self.client._request("GET", f"/families/{self.id}",
+                                         params={"curves": "true"} if curves else None)
+        return self.data
+
+    def status(self) -> str:
+        """running, done, failed or cancelled."""
+        return self.refresh()["status"]
+
+    def cancel(self) -> dict[str, Any]:
+        """Cancel the family's unfinished runs; it ends `cancelled`."""
+        return self.client._request("POST", f"/families/{self.id}/cancel")
+
+    def wait(self, timeout: float | None = None,
+             on_progress: Callable[[dict[str, Any]], Any] | None = None,
+             poll: float = DEFAULT_POLL_SECONDS) -> dict[str, Any]:
+        """Poll until the family has finished and return its body; `on_progress(body)` after
+        every poll. Raises WaitTimeoutError after `timeout` s (the family goes on)."""
+        t0 = time.monotonic()
+        while True:
+            d = self.refresh()
+            if on_progress is not None:
+                on_progress(d)
+            if d["status"] != "running":
+                return d
+            if timeout is not None and time.monotonic() - t0 >= timeout:
+                raise WaitTimeoutError(f"family {self.id} still running after {timeout:g} s")
+            time.sleep(poll)
+
+
 class Client:
     """The CMRT service at `url` (e.g. http://127.0.0.1:8000); `token`: the bearer token when
     the service sets CMRT_API_TOKEN."""
@@ -369,6 +419,30 @@ class Client:
         return Job(self, out["id"], {"id": out["id"], "status": out["status"],
                                      "name": spec.get("name")},
                    budget=out.get("budget"))
+
+    def submit_family(self, request: Mapping[str, Any]) -> Family:
+        """POST /families: grow a family of CMRTs (docs/families.md): `request` holds the base
+        `spec` (a dict, or the path of a YAML/JSON file), `param`, `values`, `strategy`,
+        `from`, `warm`, `leave_out`, `k`, `seed`."""
+        body = dict(request)
+        if isinstance(body.get("spec"), (str, Path)):
+            body["spec"] = load_spec_file(body["spec"])
+        out = self._request("POST", "/families", json_body=body)
+        return Family(self, out["id"], {"id": out["id"], "status": out["status"]},
+                      budget=out.get("budget"))
+
+    def family(self, family_id: str) -> Family:
+        """The family with this id (fetched now: raises NotFoundError if there is none)."""
+        f = Family(self, family_id)
+        f.refresh()
+        return f
+
+    def families(self, status: str | None = None, limit: int = 50,
+                 offset: int = 0) -> list[Family]:
+        """GET /families: newest first."""
+        page = self._request("GET", "/families", params={"status": status, "limit": limit,
+                                                         "offset": offset})
+        return [Family(self, d["id"], d) for d in page["items"]]
 
     def job(self, job_id: str) -> Job:
         """The job with this id (fetched now: raises NotFoundError if there is none)."""

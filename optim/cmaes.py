@@ -57,6 +57,10 @@ DEFAULT_SIGMA0 = 0.2  # in units of the [0, 1] box (paper: Hansen's recommendati
 _PICKLE_FORMAT = "cmrt-cma/1"
 
 
+#: Fewest coordinates a search may have: pycma's diagonal-decoding update fails in 1-D.
+MIN_DIMENSION = 2
+
+
 @dataclass(frozen=True)
 class StopRules:
     """The paper's stopping rules (see module docstring for the exact semantics)."""
@@ -181,8 +185,9 @@ class CmaOptimizer:
         lower: float = 0.0,
         upper: float = 1.0,
     ) -> None:
-        if dim < 1:
-            raise ParamsError(f"CMA-ES dimension must be >= 1, got {dim}")
+        if dim < MIN_DIMENSION:
+            raise ParamsError(f"CMA-ES dimension must be >= {MIN_DIMENSION} (pycma's update "
+                              f"fails on one coordinate), got {dim}")
         if not upper > lower:
             raise ParamsError("CMA-ES bounds: upper must be greater than lower")
         if x0 is None:

@@ -208,12 +208,18 @@ class PoolExecutor(Executor):
         self._closed = False
         self._cut_shared: Any = None  # [key, bound] shared with the workers
         self._cut_key = 0.0
+        # Several threads may share the pool (optim.family_run): it is made once.
+        self._start_lock = threading.Lock()
 
     @property
     def workers(self) -> int:
         return self._workers
 
     def _get_pool(self) -> cf.ProcessPoolExecutor:
+        with self._start_lock:
+            return self._get_pool_locked()
+
+    def _get_pool_locked(self) -> cf.ProcessPoolExecutor:
         if self._closed:
             raise EvaluationError("PoolExecutor is closed")
         if self._pool is None:

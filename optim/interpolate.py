@@ -108,17 +108,24 @@ def interpolate(
     *,
     key: str = "duration",
     extrapolate: bool = False,
+    values: Sequence[float] | None = None,
 ) -> InterpolatedCmrt:
-    """Interpolated CMRT at task parameter `key` = `value` (see module docstring)."""
+    """Interpolated CMRT at task parameter `key` = `value` (see module docstring).
+
+    values: each result's parameter value, in order (a family along a spec path that is not
+    one of the task's parameters, e.g. `task.width`); default: read `key` from each result's
+    task parameters. `key` then only names the parameter in messages and the output."""
     value = float(value)
     if not np.isfinite(value):
         raise InterpolationError(f"{key} must be a finite number, got {value}")
     if len(results) < 2:
         raise InterpolationError(f"interpolation needs at least 2 results, got {len(results)}")
+    if values is not None and len(values) != len(results):
+        raise InterpolationError(f"{len(values)} parameter values for {len(results)} results")
     fam = results[0].family
     shape = (len(results[0].knot_times), results[0].vertical_values is not None)
     best: dict[float, OptimizationResult] = {}
-    for r in results:
+    for i, r in enumerate(results):
         if r.family != fam:
             raise InterpolationError(
                 f"results of different families: {results[0].name!r} is {fam!r}, "
@@ -128,7 +135,7 @@ def interpolate(
             raise InterpolationError(
                 f"result {r.name!r} has a different spline layout than {results[0].name!r}"
             )
-        v = _param_of(r, key)
+        v = _param_of(r, key) if values is None else float(values[i])
         if v not in best or r.objective < best[v].objective:
             best[v] = r
     xs = sorted(best)

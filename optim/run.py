@@ -37,6 +37,7 @@ from optim.executors import EvalOutcome, Executor
 from optim.loop import (
     CANCELLED,
     FINAL_GENERATION,
+    FinalEvaluation,
     SearchSpace,
     final_evaluation,
     new_optimizer,
@@ -188,6 +189,22 @@ def optimize(
     stop_rule = run_generations(opt, space, evaluator, state, after_generation=progress)
     final = final_evaluation(opt, space, evaluator)
     wall_before = 0.0 if state is None else state.wall_before
+    return result_of(spec, opt, space, final, stop_rule=stop_rule, seed=seed,
+                     wall_seconds=wall_before + time.perf_counter() - t0)
+
+
+def result_of(
+    spec: TaskSpec,
+    opt: CmaOptimizer,
+    space: SearchSpace,
+    final: FinalEvaluation,
+    *,
+    stop_rule: str,
+    seed: int,
+    wall_seconds: float,
+) -> OptimizationResult:
+    """The result document of a finished search (the command line's `--out` file, and a
+    service job's result): the best candidate with its final evaluation and the flat spline's."""
     return OptimizationResult.build(
         spec,
         final.best_params,
@@ -198,11 +215,11 @@ def optimize(
         evaluations=opt.evaluations,
         iterations=opt.iterations,
         stop_rule=stop_rule,
-        wall_seconds=wall_before + time.perf_counter() - t0,
+        wall_seconds=wall_seconds,
         seed=seed,
         history=[h.to_dict() for h in opt.history],
         basis_id=space.basis_id,
-        reduced_params=None if basis is None else final.best_x,
+        reduced_params=None if space.basis is None else final.best_x,
         fall_direction=final.best.fall_direction,
         task_success=final.best.task_success,
         baseline_fall_direction=final.flat.fall_direction,
@@ -218,5 +235,6 @@ __all__ = [
     "initial_point",
     "load_checkpoint",
     "optimize",
+    "result_of",
     "save_checkpoint",
 ]

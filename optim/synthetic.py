@@ -85,6 +85,29 @@ class RunningSum:
 
 
 @dataclass(frozen=True)
+class LineFamily:
+    """One member of a synthetic family: f(x) = offset + sum((x - c)^2), whose optimum
+    c_j = base + slope * value * (j + 1) / d moves along a straight line of the box as
+    `value` changes (a family with a one-component basis); `sleep`: s of wall time per call."""
+
+    value: float
+    base: float = 0.3
+    slope: float = 0.05
+    offset: float = 0.1
+    sleep: float = 0.0
+
+    def centre(self, dim: int) -> np.ndarray:
+        return self.base + self.slope * self.value * (np.arange(dim) + 1.0) / dim
+
+    def __call__(self, x: np.ndarray) -> EvalOutcome:
+        if self.sleep:
+            time.sleep(self.sleep)
+        x = np.asarray(x, dtype=float)
+        f = self.offset + float(np.sum((x - self.centre(len(x))) ** 2))
+        return EvalOutcome(objective=f, cpu_seconds=0.0)
+
+
+@dataclass(frozen=True)
 class RaiseAbove:
     """Sphere that raises ValueError when x[0] > limit (an evaluation error)."""
 
@@ -117,4 +140,4 @@ class Sleep:
         return EvalOutcome(objective=0.0)
 
 
-__all__ = ["KillWorker", "NoisyFlat", "RaiseAbove", "RunningSum", "Sleep", "Sphere"]
+__all__ = ["KillWorker", "LineFamily", "NoisyFlat", "RaiseAbove", "RunningSum", "Sleep", "Sphere"]

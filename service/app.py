@@ -24,7 +24,17 @@ from cmrt.settings import Settings, get_settings
 from service.deps import Services, no_nul
 from service.errors import install_error_handlers
 from service.openapi import install_openapi
-from service.routers import bases, cmrts, health, jobs, links, pages, replays, simulations
+from service.routers import (
+    bases,
+    cmrts,
+    families,
+    health,
+    jobs,
+    links,
+    pages,
+    replays,
+    simulations,
+)
 from service.security import HttpEdge
 from service.simulations import SimulationPool
 from store import Repository, open_repository
@@ -39,12 +49,15 @@ def create_app(
     *,
     repo: Repository | None = None,
     executor: GenerationExecutor | None = None,
-    run_drivers: bool = True,
+    run_drivers: bool | None = None,
 ) -> FastAPI:
     """Build the app. Defaults: settings from the environment (`cmrt.settings.get_settings`),
     repository migrated to the newest schema, executor chosen by the broker setting.
-    `run_drivers=False`: jobs are accepted and stored but not driven (HTTP-layer tests)."""
+    `run_drivers=False` (default: `settings.api_drivers`): jobs and families are accepted and
+    stored but driven elsewhere (`cmrt driver`), or not at all (HTTP-layer tests)."""
     settings = settings or get_settings()
+    if run_drivers is None:
+        run_drivers = settings.api_drivers
     repo = repo or open_repository(settings.database_url)
     executor = executor or make_generation_executor(settings)
     svc = Services(settings=settings, repo=repo, executor=executor,
@@ -75,7 +88,7 @@ def create_app(
     app.state.services = svc
     install_error_handlers(app)
     install_openapi(app, settings)
-    for module in (jobs, cmrts, bases, simulations, replays, links, health, pages):
+    for module in (jobs, families, cmrts, bases, simulations, replays, links, health, pages):
         app.include_router(module.router)
     static = resources.files("service").joinpath("static")
     app.mount("/static", StaticFiles(directory=str(static)), name="static")

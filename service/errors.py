@@ -1,22 +1,46 @@
 """HTTP errors of the API and their translation from domain exceptions.
 
 Every error body is `{"detail": "<field>: <rule>"}` (`schemas.Problem`): 400 malformed JSON,
-401 missing or wrong API token, 404 unknown id, 409 conflicting state, 413 body too large,
-415 body not `application/json`, 422 a field breaking a rule. Domain exceptions (store.NotFound,
-pydantic and FastAPI validation errors) are translated here, at the HTTP edge, and nowhere else.
+401 missing or wrong API token, 403 a state-changing request from another origin
+(`service.security`), 404 unknown id (quoted, ASCII-escaped), 409 conflicting state, 413 body
+too large,
+415 body not `application/json`, 422 a field breaking a rule, 503 the database unreachable
+(with `Retry-After`). Domain exceptions (store.NotFound, pydantic and FastAPI validation errors,
+SQLAlchemy's connection errors) are translated here, at the HTTP edge, and nowhere else.
+
+A database outage (the server down, refusing connections, a session terminated, the pool
+exhausted) answers 503 `{"detail": "database: unreachable; retry later"}` with `Retry-After`:
+the request's transaction did not commit, so nothing of it is stored, and repeating it later is
+safe. What the driver said goes to the log only (it may quote SQL or the database's address).
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 
 from sim.spec import error_location
 from store import NotFound
+
+log = logging.getLogger("cmrt.service.errors")
+
+#: Seconds a client is asked to wait after a 503 for an unreachable database.
+DATABASE_RETRY_AFTER_S = 5
+DATABASE_UNREACHABLE = "database: unreachable; retry later"
+
+
+def database_unreachable(err: BaseException) -> bool:
+    """Whether `err` means the database cannot be reached (rather than a bad statement)."""
+    if isinstance(err, OperationalError | InterfaceError | PoolTimeoutError):
+        return True
+    return isinstance(err, DBAPIError) and bool(err.connection_invalidated)
 
 
 class ApiError(Exception):
@@ -34,7 +58,7 @@ def validation_message(errors: Iterable[Mapping[str, Any]], drop: tuple[str, ...
     parts = []
     for e in errors:
         loc = ".".join(str(p) for p in error_location(e["loc"]) if p not in drop)
-        parts.append(f"{loc or 'body'}: {e['msg']}")
+        parts.append(f"{loc or 'body'}: {e['msg'].removeprefix('Value error, ')}")
     return "; ".join(parts)
 
 
@@ -46,6 +70,17 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(NotFound)
     async def _not_found(_: Request, err: NotFound) -> JSONResponse:
         return JSONResponse({"detail": str(err)}, status_code=404)
+
+    async def _database(request: Request, err: Exception) -> JSONResponse:
+        if not database_unreachable(err):
+            raise err
+        log.error("database unreachable on %s %s: %s", request.method, request.url.path,
+                  str(err).splitlines()[0] if str(err) else type(err).__name__)
+        return JSONResponse({"detail": DATABASE_UNREACHABLE}, status_code=503,
+                            headers={"Retry-After": str(DATABASE_RETRY_AFTER_S)})
+
+    app.add_exception_handler(DBAPIError, _database)
+    app.add_exception_handler(PoolTimeoutError, _database)
 
     @app.exception_handler(RequestValidationError)
     async def _validation(_: Request, err: RequestValidationError) -> JSONResponse:

@@ -4,10 +4,13 @@ With `CMRT_API_TOKEN` set and public reads off, every data read needs `Authoriza
 a link the dashboard hands to the browser (`<a href="/jobs/{id}/replay">`) cannot carry a
 header, so it would answer 401. `POST /links` (which needs the token like every write) mints
 `<path>?expires=<unix s>&signature=<hex>`: an HMAC-SHA256, keyed by the API token, of the path
-and the expiry. The HTTP edge (`service.security`) lets a GET or HEAD of a replay page through
-with a valid, unexpired signature for exactly that path. A link lives `LINK_SECONDS`; changing
-the token revokes every link. Only the replay pages are signable (`SIGNABLE`): they are what a
-browser opens by following a link; the JSON endpoints keep needing the header.
+and the whole query but the signature (every parameter, sorted), so a parameter added to or
+changed in a signed link (`&compare=false`) voids it. The HTTP edge (`service.security`) lets a
+GET or HEAD of a replay page through with a valid, unexpired signature for exactly that path
+and query. Links are minted only for a job or library CMRT that exists (404 otherwise). A link
+lives `LINK_SECONDS`; changing the token revokes every link. Only the replay pages are signable
+(`SIGNABLE`): they are what a browser opens by following a link; the JSON endpoints keep needing
+the header.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import hashlib
 import hmac
 import re
 import time
-from urllib.parse import parse_qs, urlencode
+from urllib.parse import parse_qsl, urlencode
 
 #: How long a signed link stays valid, in seconds.
 LINK_SECONDS = 900
@@ -26,30 +29,34 @@ SIGNABLE = re.compile(r"/(?:jobs|cmrts)/[A-Za-z0-9._~-]{1,64}/replay")
 SIGNATURE_CHARS = 64
 
 
-def signature(token: str, path: str, expires: int) -> str:
-    """The hex HMAC-SHA256 of `path` and `expires` under the key `token`."""
-    msg = f"{path}\n{expires}".encode()
+def signature(token: str, path: str, params: list[tuple[str, str]]) -> str:
+    """The hex HMAC-SHA256 under the key `token` of `path` and the query parameters `params`
+    (every one but `signature`; their order does not matter)."""
+    msg = f"{path}\n{urlencode(sorted(params))}".encode()
     return hmac.new(token.encode(), msg, hashlib.sha256).hexdigest()
 
 
 def sign(token: str, path: str, now: float | None = None) -> tuple[str, int]:
     """The signed link to `path` (a `SIGNABLE` path) and its expiry (unix seconds)."""
     expires = int(now if now is not None else time.time()) + LINK_SECONDS
-    query = urlencode({"expires": expires, "signature": signature(token, path, expires)})
+    params = [("expires", str(expires))]
+    query = urlencode([*params, ("signature", signature(token, path, params))])
     return f"{path}?{query}", expires
 
 
 def verify(token: str, path: str, query_string: bytes | str, now: float | None = None) -> bool:
-    """Whether the query string carries a valid, unexpired signature for `path`."""
+    """Whether the query string carries a valid, unexpired signature for `path` and every
+    other parameter of the query."""
     if not token or not SIGNABLE.fullmatch(path):
         return False
     if isinstance(query_string, bytes):
         query_string = query_string.decode("latin-1")
-    q = parse_qs(query_string)
-    exp, sig = q.get("expires", []), q.get("signature", [])
+    pairs = parse_qsl(query_string, keep_blank_values=True)
+    sig = [v for k, v in pairs if k == "signature"]
+    params = [(k, v) for k, v in pairs if k != "signature"]
+    exp = [v for k, v in params if k == "expires"]
     if len(exp) != 1 or len(sig) != 1 or not exp[0].isdigit() or len(exp[0]) > 15:
         return False
-    expires = int(exp[0])
-    if expires < (now if now is not None else time.time()):
+    if int(exp[0]) < (now if now is not None else time.time()):
         return False
-    return hmac.compare_digest(sig[0].encode(), signature(token, path, expires).encode())
+    return hmac.compare_digest(sig[0].encode(), signature(token, path, params).encode())

@@ -29,14 +29,20 @@ REF_PREFIX = "#/components/schemas/"
 ERRORS: dict[int, str] = {
     400: "Malformed JSON, or JSON nested deeper than the limit (service.body.MAX_JSON_DEPTH)",
     401: "Missing or wrong API token (only when CMRT_API_TOKEN is set)",
-    403: "A state-changing request a browser marked cross-site (Sec-Fetch-Site)",
+    403: "A state-changing request from another origin (its Origin is not the service's, or "
+         "Sec-Fetch-Site says cross-site or same-site)",
     404: "No such id",
     409: "The resource's state forbids it (e.g. cancelling a finished job)",
     413: "Request body larger than CMRT_MAX_BODY_BYTES",
     415: "Request body is not application/json",
     422: "A field breaks a rule; `detail` names the field and the rule",
-    503: "A dependency (database, broker) is unreachable; the body gives the state only",
+    503: "The database is unreachable, every simulation process is busy, or (/health) a "
+         "dependency is down; retry after `Retry-After` seconds",
 }
+#: Operations that read no database (every other one may answer 503 in an outage).
+NO_DATABASE = frozenset({"/dashboard", "/docs", "/openapi.json", "/"})
+_RETRY_AFTER = {"Retry-After": {"description": "seconds to wait before retrying",
+                                "schema": {"type": "integer", "minimum": 1}}}
 _PROBLEM = {"$ref": REF_PREFIX + "Problem"}
 
 
@@ -135,8 +141,10 @@ def build_openapi(app: FastAPI, settings: Settings,
                   always: tuple[int, ...] = (422,)) -> dict[str, Any]:
     """The exact document of `app` under `settings` (see the module docstring). `always`:
     error codes every operation can answer (422: a NUL character in the path or query, see
-    service.deps). With an API token, the operations that need it say so (`security`, 401);
-    state-changing ones answer 403 to cross-site browser requests (service.security)."""
+    service.deps); every operation but the `NO_DATABASE` pages may answer 503 with
+    `Retry-After` when the database is unreachable (service.errors). With an API token, the
+    operations that need it say so (`security`, 401); state-changing ones answer 403 to
+    requests from another origin (service.security)."""
     doc = get_openapi(title=app.title, version=app.version, description=app.description,
                       routes=app.routes)
     components = doc.setdefault("components", {}).setdefault("schemas", {})
@@ -150,6 +158,8 @@ def build_openapi(app: FastAPI, settings: Settings,
             for name in op.pop("x-body-models", []):
                 body_models[name] = getattr(schemas, name)
             codes = list(always)
+            if path not in NO_DATABASE:
+                codes.append(503)
             if method.upper() not in SAFE_METHODS:
                 codes.append(403)
             if needs_token(settings, method, path):
@@ -163,6 +173,8 @@ def build_openapi(app: FastAPI, settings: Settings,
             for code, resp in op.get("responses", {}).items():
                 if int(code) >= 400:
                     resp["content"] = {"application/json": {"schema": copy.deepcopy(_PROBLEM)}}
+                    if code == "503":
+                        resp["headers"] = copy.deepcopy(_RETRY_AFTER)
                     if resp.get("description") in (None, "", "Validation Error"):
                         resp["description"] = ERRORS.get(int(code), "Error")
     if body_models:

@@ -8,9 +8,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from optim.family import FamilySpec
+from service.links import SIGNABLE
 from sim.spec import TaskSpec
 
-__all__ = ["TaskSpec"]
+__all__ = ["FamilySpec", "TaskSpec"]
 
 #: Longest inline CMRT parameter vector accepted (3 per knot, at most 16 knots).
 MAX_CMRT_PARAMS = 48
@@ -26,6 +28,19 @@ JOB_EXAMPLE: dict[str, Any] = {
              "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}},
     "optimize": {"threshold": 1.1, "max_evaluations": 700},
 }
+#: The example body of `POST /families`: the bend along its duration, by continuation from both
+#: ends, with 0.3 s left out for the checks.
+FAMILY_EXAMPLE: dict[str, Any] = {
+    "spec": {**JOB_EXAMPLE, "optimize": {"max_evaluations": 120, "min_evaluations": 40,
+                                         "window": 5, "improvement": 0.02}},
+    "param": "clip.duration",
+    "values": [0.2, 0.25, 0.3, 0.35, 0.4, 0.45],
+    "strategy": "continuation",
+    "from": "both",
+    "leave_out": [0.3],
+    "k": 2,
+    "seed": 1,
+}
 #: The example body of `POST /bases`.
 BASIS_EXAMPLE: dict[str, Any] = {"family": "bend", "k": 2}
 
@@ -35,12 +50,17 @@ class Problem(BaseModel):
 
 
 class JobRequest(BaseModel):
-    """A bare TaskSpec, or this envelope with a seed and/or a PCA basis to search in."""
+    """A bare TaskSpec, or this envelope with a seed, a PCA basis to search in, and where the
+    search starts."""
 
     model_config = ConfigDict(extra="forbid")
     spec: TaskSpec
     seed: Annotated[int, Field(ge=0, lt=2**31)] | None = None
     basis: Annotated[str, Field(max_length=64)] | None = None
+    start: Literal["library", "cold"] = Field(
+        "library", description="library: from the library's CMRT at the spec's task "
+        "parameters when it has one (interpolated between neighbours or stored there), with a "
+        "small step; cold: from the flat spline")
 
 
 class JobBudget(BaseModel):
@@ -63,6 +83,8 @@ class JobOut(BaseModel):
     id: str
     url: str
     name: str
+    #: Where the search started: {"from": ..., "x0": [...]}; null: the flat spline.
+    start: dict[str, Any] | None = None
     family: str
     task: str
     status: str
@@ -168,6 +190,16 @@ class CmrtPage(BaseModel):
     total: int
     limit: int
     offset: int
+
+
+class LibraryFamily(BaseModel):
+    family: str
+    count: int
+
+
+class LibraryFamilies(BaseModel):
+    items: list[LibraryFamily]
+    total: int
 
 
 class BasisOut(BaseModel):
@@ -302,7 +334,10 @@ class LinkRequest(BaseModel):
     """A replay page to open without the token header."""
 
     model_config = ConfigDict(extra="forbid")
-    path: str = Field(max_length=128, description="`/jobs/{id}/replay` or `/cmrts/{id}/replay`")
+    path: str = Field(max_length=128,
+                      description="`/jobs/{id}/replay` or `/cmrts/{id}/replay` of an existing "
+                                  "job or library CMRT (id: 1-64 of A-Z a-z 0-9 . _ ~ -)",
+                      json_schema_extra={"pattern": f"^{SIGNABLE.pattern}$"})
 
 
 class LinkOut(BaseModel):

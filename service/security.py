@@ -2,7 +2,8 @@
 
 - Methods: `OPTIONS <path>` answers 204 with every method the path has in `Allow`; any other
   method the path lacks answers 405 with the same `Allow` (Starlette alone names only the
-  first route matching the path).
+  first route matching the path). `HEAD` is served wherever `GET` is: the GET route answers
+  and its body is dropped (status and headers, `Content-Length` included, are the GET's).
 - Authentication (only when `CMRT_API_TOKEN` is set): `Authorization: Bearer <token>` is
   required on every state-changing request and, unless `CMRT_API_PUBLIC_READS=true`, on the
   read-only data endpoints too (401 otherwise, compared in constant time). Always open: `/health`
@@ -10,9 +11,14 @@
   assets and `/openapi.json`; they hold no data, and the dashboard sends the token itself
   (`/dashboard/...`: the job and library pages, shells too). A replay page also opens with a
   signed, short-lived link instead of the header (`service.links`, minted by `POST /links`).
-- Cross-site requests: a state-changing request a browser marks `Sec-Fetch-Site: cross-site` is
-  refused (403); bodies must be `application/json` (415, `service.body`), which a cross-origin
-  page cannot send without a CORS preflight, and the API grants no CORS.
+- Other origins: a state-changing request from a page of another origin is refused (403): its
+  `Origin` header (which a browser sets on every cross-origin request and a page cannot
+  change) must be the service's own: `CMRT_PUBLIC_URL`'s origin, or the request's scheme with
+  its `Host` (the address the browser is talking to; behind a TLS proxy, set the public URL);
+  one a browser marks `Sec-Fetch-Site: cross-site` or `same-site` (another port or subdomain
+  of the same site is another origin) is refused. A request with neither header (curl, the
+  CLI) is not a page's. Bodies must also be `application/json` (415, `service.body`), which a
+  cross-origin page cannot send without a CORS preflight, and the API grants no CORS.
 - Headers on every response: `X-Content-Type-Options: nosniff`, `X-Frame-Options: DENY`,
   `Referrer-Policy: no-referrer` and a Content-Security-Policy: `PAGE_CSP` on the dashboard
   (every `/dashboard...` page),
@@ -26,6 +32,7 @@ import hmac
 import json
 from collections.abc import Awaitable, Callable
 from typing import Any
+from urllib.parse import urlsplit
 
 from starlette.routing import Match, Mount
 
@@ -129,10 +136,13 @@ class HttpEdge:
                            f"method: {method} is not allowed on {path} "
                            f"(allowed: {', '.join(methods)})", {"allow": ", ".join(methods)})
             return
-        if method not in SAFE_METHODS and _header(scope, b"sec-fetch-site") == b"cross-site":
-            await _respond(send_with_headers, 403,
-                           "origin: cross-site requests that change state are refused")
-            return
+        if method not in SAFE_METHODS:
+            refused = foreign_origin(scope, self.settings.public_url)
+            if refused:
+                await _respond(send_with_headers, 403,
+                               f"origin: requests that change state from another origin are "
+                               f"refused ({refused})")
+                return
         if (needs_token(self.settings, method, path) and not self._token_ok(scope)
                 and not (method in ("GET", "HEAD") and links.verify(
                     self.secret, path, scope.get("query_string", b"")))):
@@ -140,7 +150,47 @@ class HttpEdge:
                            "authorization: a valid 'Bearer <CMRT_API_TOKEN>' header is required",
                            {"www-authenticate": 'Bearer realm="cmrt"'})
             return
+        if method == "HEAD":  # the GET route answers, without its body (RFC 9110 9.3.2)
+            await self.asgi({**scope, "method": "GET"}, receive, _without_body(send_with_headers))
+            return
         await self.asgi(scope, receive, send_with_headers)
+
+
+def _origin_of(url: str) -> str:
+    """`scheme://host[:port]` of an absolute URL, lower-cased (no path)."""
+    parts = urlsplit(url.strip())
+    return f"{parts.scheme}://{parts.netloc}".lower()
+
+
+def foreign_origin(scope: Scope, public_url: str | None) -> str:
+    """Why the request comes from a page of another origin ("" when it does not): its
+    `Sec-Fetch-Site` says cross-site or same-site, or its `Origin` is neither
+    `public_url`'s origin nor the request's own host (see the module docstring)."""
+    site = _header(scope, b"sec-fetch-site")
+    if site in (b"cross-site", b"same-site"):
+        return f"Sec-Fetch-Site: {site.decode('latin-1')}"
+    origin = _header(scope, b"origin")
+    if origin is None:
+        return ""
+    given = origin.decode("latin-1")
+    own = {_origin_of(public_url)} if public_url else set()
+    host = _header(scope, b"host")
+    if given != "null" and host is not None:
+        own.add(f"{scope.get('scheme', 'http')}://{host.decode('latin-1')}")
+    if given in own:
+        return ""
+    return f"Origin: {json.dumps(given[:100])}"
+
+
+def _without_body(send: Send) -> Send:
+    """`send` with every body chunk emptied (the headers, Content-Length included, kept)."""
+
+    async def send_head(message: dict[str, Any]) -> None:
+        if message["type"] == "http.response.body":
+            message = {**message, "body": b""}
+        await send(message)
+
+    return send_head
 
 
 def _header(scope: Scope, name: bytes) -> bytes | None:

@@ -28,12 +28,25 @@ Units: seconds, metres, newtons, kilograms; joint angles in specs are in degrees
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+import types
+import typing
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Union
 
+import annotated_types
 import yaml
-from pydantic import Discriminator, Field, Tag, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic.fields import FieldInfo
 
 from sim.character import (
     DATA_DIR,
@@ -45,10 +58,12 @@ from sim.character import (
 from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
 from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
-from sim.specbase import StrictModel
+from sim.specbase import StrictModel, count, quantity
 from sim.tasks import TASK_TYPES
+from sim.tasks.base import MAX_CLIP_SECONDS
 
-MAX_CLIP_SECONDS = 20.0
+#: Most evaluations a spec may ask for (and bound of the stopping rules counted in them).
+MAX_EVALUATIONS = 100_000
 #: The task window is at least one simulation step (sim.physics.DT, s): a shorter one is no
 #: motion the simulator can make (a pose change in 5e-324 s made the controller non-finite).
 MIN_TASK_SECONDS = 0.001
@@ -87,8 +102,8 @@ class CharacterRef(_Strict):
     A height or mass left out is the character file's own (its `reference`)."""
 
     model: Annotated[str, Field(pattern=r"^[a-z0-9_]{1,64}$")] = DEFAULT_CHARACTER
-    height: Annotated[float, Field(gt=1.0, le=2.5)] = 1.75
-    mass: Annotated[float, Field(gt=20.0, le=250.0)] = 70.0
+    height: quantity(1.0, 2.5, "m") = 1.75
+    mass: quantity(20.0, 250.0, "kg") = 70.0
 
     @model_validator(mode="before")
     @classmethod
@@ -116,9 +131,9 @@ class CharacterRef(_Strict):
 class Clip(_Strict):
     """Clip timing in seconds: preparation, then the task window, then decay."""
 
-    preparation: Annotated[float, Field(ge=0.0, le=10.0)] = 1.0
-    duration: Annotated[float, Field(ge=MIN_TASK_SECONDS, le=10.0)]
-    decay: Annotated[float, Field(ge=0.0, le=10.0)] = 1.0
+    preparation: quantity(0.0, 10.0, "s") = 1.0
+    duration: quantity(MIN_TASK_SECONDS, 10.0, "s")
+    decay: quantity(0.0, 10.0, "s") = 1.0
 
     @property
     def task_start(self) -> float:
@@ -147,11 +162,11 @@ class GainSchedule(_Strict):
     window; `ramp` is the ease time in seconds at each end of the window.
     """
 
-    scale: dict[str, Annotated[float, Field(gt=0.0, le=20.0)]] = {}
-    set: dict[str, Annotated[float, Field(ge=0.0, le=1e4)]] = {}
-    start: Annotated[float, Field(ge=0.0)] | None = None
-    end: Annotated[float, Field(ge=0.0)] | None = None
-    ramp: Annotated[float, Field(ge=0.0, le=5.0)] = 0.1
+    scale: dict[str, quantity(0.01, 20.0, "times the gain")] = {}
+    set: dict[str, quantity(0.0, 1e4, "in the gain's unit")] = {}
+    start: quantity(0.0, MAX_CLIP_SECONDS, "s") | None = None
+    end: quantity(0.0, MAX_CLIP_SECONDS, "s") | None = None
+    ramp: quantity(0.0, 5.0, "s") = 0.1
 
     @field_validator("scale", "set")
     @classmethod
@@ -174,22 +189,22 @@ class GainSchedule(_Strict):
 class CmrtConfig(_Strict):
     """How a parameter vector in [0, 1]^d decodes into a CMRT spline (see optim.spline)."""
 
-    knots: Annotated[int, Field(ge=1, le=16)] = 4
+    knots: count(1, 16, "knots") = 4
     vertical: bool = False
-    max_displacement: Annotated[float, Field(gt=0.0, le=0.5)] = 0.15
-    max_vertical: Annotated[float, Field(gt=0.0, le=0.3)] = 0.08
+    max_displacement: quantity(0.001, 0.5, "m") = 0.15
+    max_vertical: quantity(0.001, 0.3, "m") = 0.08
 
 
 class OptimizeConfig(_Strict):
     """CMA-ES settings and the paper's stopping rules."""
 
-    threshold: Annotated[float, Field(gt=0.0)] | None = None
-    sigma0: Annotated[float, Field(gt=0.0, le=1.0)] = 0.2
-    popsize: Annotated[int, Field(ge=2, le=200)] | None = None
-    min_evaluations: Annotated[int, Field(ge=0)] = 700
-    max_evaluations: Annotated[int, Field(ge=1, le=100_000)] = 2000
-    window: Annotated[int, Field(ge=1)] = 100
-    improvement: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.05
+    threshold: quantity(1e-6, 1e6, "(objective)") | None = None
+    sigma0: quantity(0.001, 1.0, "(of the unit cube)") = 0.2
+    popsize: count(2, 200, "candidates") | None = None
+    min_evaluations: count(0, MAX_EVALUATIONS, "evaluations") = 700
+    max_evaluations: count(1, MAX_EVALUATIONS, "evaluations") = 2000
+    window: count(1, MAX_EVALUATIONS, "evaluations") = 100
+    improvement: quantity(1e-4, 0.999, "(fraction)") = 0.05
 
 
 class TaskSpec(_Strict):
@@ -291,12 +306,13 @@ class TaskSpec(_Strict):
 def error_location(loc: Sequence[str | int]) -> list[str | int]:
     """A pydantic error path as the spec's author wrote it: pydantic puts the chosen member's
     tag of a discriminated union in the path (`task.push.force`), which names no field of the
-    file; the tag after a `task` or `controller` key is dropped, at any depth (a spec nested
-    in a request body included)."""
+    file; the tag right after a `task` or `controller` key is dropped, at any depth (a spec
+    nested in a request body included), and only it (the domino's `task.push` is a field)."""
     out: list[str | int] = []
-    for part in loc:
-        if out and ((out[-1] == "task" and part in TASK_TYPES)
-                    or (out[-1] == "controller" and part in CONTROLLER_TYPES)):
+    for i, part in enumerate(loc):
+        before = loc[i - 1] if i else None  # the raw key: a field named like a tag is kept
+        if (before == "task" and part in TASK_TYPES) or (before == "controller"
+                                                         and part in CONTROLLER_TYPES):
             continue
         out.append(part)
     return out
@@ -346,3 +362,90 @@ def load_spec(path: str | Path) -> TaskSpec:
         kind = "JSON" if p.suffix == ".json" else "YAML"
         raise SpecError(f"{p}: not valid {kind}: {err}") from None
     return parse_spec(data, str(p))
+
+
+# ---- the numeric fields of a spec ------------------------------------------------------------
+@dataclass(frozen=True)
+class NumericField:
+    """One number a spec sets or could set: its path (as in error messages, `task.ball.mass`,
+    `schedule.0.ramp`, `task.target.waist`), its value (None: an optional field left out),
+    whether it is an integer, and its range (None: unbounded on that side)."""
+
+    path: tuple[str | int, ...]
+    value: float | None
+    integer: bool
+    lo: float | None
+    hi: float | None
+
+    @property
+    def name(self) -> str:
+        return ".".join(str(p) for p in self.path)
+
+
+def _bounds(meta: Sequence[Any]) -> tuple[float | None, float | None]:
+    lo = hi = None
+    for m in meta:
+        if isinstance(m, FieldInfo):
+            a, b = _bounds(m.metadata)
+            lo, hi = (a if a is not None else lo), (b if b is not None else hi)
+        elif isinstance(m, annotated_types.Ge | annotated_types.Gt):
+            lo = float(m.ge if isinstance(m, annotated_types.Ge) else m.gt)
+        elif isinstance(m, annotated_types.Le | annotated_types.Lt):
+            hi = float(m.le if isinstance(m, annotated_types.Le) else m.lt)
+    return lo, hi
+
+
+def _numeric_type(ann: Any, meta: Sequence[Any] = ()) -> tuple[bool, float | None,
+                                                               float | None] | None:
+    """(integer, lo, hi) of a numeric annotation (optional or annotated), else None."""
+    origin = typing.get_origin(ann)
+    if origin in (Union, types.UnionType):
+        args = [a for a in typing.get_args(ann) if a is not type(None)]
+        return _numeric_type(args[0], meta) if len(args) == 1 else None
+    if origin is Annotated:
+        return _numeric_type(typing.get_args(ann)[0], [*meta, *ann.__metadata__])
+    if ann in (int, float):
+        return (ann is int, *_bounds(meta))
+    return None
+
+
+def _walk(value: Any, ann: Any, meta: Sequence[Any],
+          path: tuple[str | int, ...]) -> Iterator[NumericField]:
+    if isinstance(value, BaseModel):
+        for name, info in type(value).model_fields.items():
+            yield from _walk(getattr(value, name), info.annotation, info.metadata,
+                             (*path, name))
+        return
+    num = _numeric_type(ann, meta)
+    if num is not None and (value is None or not isinstance(value, bool | str)):
+        yield NumericField(path, value, *num)
+    elif isinstance(value, dict):
+        args = typing.get_args(_strip_optional(ann))
+        item = args[1] if len(args) == 2 else Any
+        for k, v in value.items():
+            yield from _walk(v, item, (), (*path, k))
+    elif isinstance(value, list | tuple):
+        args = typing.get_args(_strip_optional(ann))
+        item = args[0] if args else Any
+        for i, v in enumerate(value):
+            yield from _walk(v, item, (), (*path, i))
+
+
+def _strip_optional(ann: Any) -> Any:
+    while True:
+        origin = typing.get_origin(ann)
+        if origin is Annotated:
+            ann = typing.get_args(ann)[0]
+        elif origin in (Union, types.UnionType):
+            args = [a for a in typing.get_args(ann) if a is not type(None)]
+            if len(args) != 1:
+                return ann
+            ann = args[0]
+        else:
+            return ann
+
+
+def numeric_fields(spec: TaskSpec) -> list[NumericField]:
+    """Every number the spec sets, and every optional number it leaves out (value None), with
+    its range: the fields of its blocks, the entries of its pose targets and gain maps."""
+    return list(_walk(spec, TaskSpec, (), ()))

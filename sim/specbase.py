@@ -2,21 +2,36 @@
 
 Strict types: a number given as a string ("0.1") or a boolean (true) is rejected, as is an
 integer field given 4.0; every float must be finite (NaN, inf and 1e999 are rejected); unknown
-fields are rejected; strings may not hold control characters (NUL, newline, escape, ...),
-also in mapping keys. Errors name the field (pydantic's location) and the rule.
+fields are rejected; strings may not hold control characters (NUL, newline, escape, ...) nor
+the bidirectional formatting characters (U+202E RIGHT-TO-LEFT OVERRIDE and the other embeddings,
+overrides, isolates and marks, `BIDI_CONTROLS`: they reorder how a name is displayed), also in
+mapping keys. Errors name the field (pydantic's location) and the rule.
 """
 
 from __future__ import annotations
 
+import math
 import unicodedata
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
+
+#: Smallest size of a nonzero quantity (in its own unit).
+MIN_MAGNITUDE = 1e-9
+
+#: The bidirectional formatting characters (Unicode's Bidi_Control property): a name holding
+#: one can be displayed as another (`abc\u202edcba` shows as `abcabcd`).
+BIDI_CONTROLS = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e"
+                          "\u2066\u2067\u2068\u2069")
+
+
+def _is_control(ch: str) -> bool:
+    return ch in BIDI_CONTROLS or unicodedata.category(ch) == "Cc"
 
 
 def _check_text(value: Any) -> None:
     if isinstance(value, str):
-        bad = next((ch for ch in value if unicodedata.category(ch) == "Cc"), None)
+        bad = next((ch for ch in value if _is_control(ch)), None)
         if bad is not None:
             raise ValueError(f"control character {bad!r} not allowed in text")
     elif isinstance(value, dict):
@@ -39,3 +54,51 @@ class StrictModel(BaseModel):
         if not isinstance(value, BaseModel):
             _check_text(value)
         return value
+
+
+def _shown(v: float) -> str:
+    """A number for a message (an integer of hundreds of digits is not printed whole)."""
+    if isinstance(v, int) and abs(v) >= 10**15:
+        return f"an integer of {len(str(abs(v)))} digits"
+    return repr(v)
+
+
+def quantity_rule(lo: float, hi: float, unit: str) -> str:
+    """The words of a quantity's range: `from 0.05 to 50 kg`."""
+    return f"from {lo:g} to {hi:g}{' ' + unit if unit else ' (no unit)'}"
+
+
+def quantity(lo: float, hi: float, unit: str) -> Any:
+    """The type of a quantity in [lo, hi] `unit` (see the module docstring): a strict finite
+    float (an int is accepted as a float), 0 or at least `MIN_MAGNITUDE` in size."""
+    rule = quantity_rule(lo, hi, unit)
+
+    def check(v: Any) -> Any:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            return v  # the strict float type reports it
+        if isinstance(v, float) and not math.isfinite(v):
+            return v  # allow_inf_nan reports it
+        if not lo <= v <= hi:
+            raise ValueError(f"must be {rule}, got {_shown(v)}")
+        if v != 0 and abs(v) < MIN_MAGNITUDE:
+            raise ValueError(f"must be 0 or at least {MIN_MAGNITUDE:g} in size ({rule}), "
+                             f"got {_shown(v)}")
+        return v
+
+    small = f"; 0 or at least {MIN_MAGNITUDE:g} in size" if lo <= 0 <= hi else ""
+    return Annotated[float, Field(ge=lo, le=hi, description=rule + small),
+                     BeforeValidator(check)]
+
+
+def count(lo: int, hi: int, unit: str) -> Any:
+    """The type of a whole number of `unit` (knots, links, evaluations) in [lo, hi]: a strict
+    int, refused out of range with the unit and the range in the message."""
+    rule = f"from {lo} to {hi} {unit}"
+
+    def check(v: Any) -> Any:
+        if isinstance(v, int) and not isinstance(v, bool) and not lo <= v <= hi:
+            raise ValueError(f"must be {rule}, got {_shown(v)}")
+        return v  # anything but an int: the strict int type reports it
+
+    return Annotated[int, Field(ge=lo, le=hi, description=rule), BeforeValidator(check)]
+

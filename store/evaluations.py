@@ -318,7 +318,7 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
             if row is None:  # done, failed or missing: count nothing
                 row = conn.execute(_CLAIM_LOOKUP, key).first()
                 if row is None:
-                    raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
+                    raise NotFound(f"evaluation ({job_id!a}, {generation}, {index}) not found")
         return EvaluationClaim(
             job_id=job_id, generation=int(generation), index=int(index), status=row[0],
             attempts=int(row[1]), params=row[2], job_status=row[3],
@@ -342,7 +342,7 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
             if conn.execute(self._store_result, {**key, **values}).rowcount == 1:
                 return True
             if conn.execute(_EVALUATION_ID, key).first() is None:
-                raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
+                raise NotFound(f"evaluation ({job_id!a}, {generation}, {index}) not found")
             return False
 
     def release_attempt(self, job_id, generation, index):
@@ -351,7 +351,7 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
             if conn.execute(_RELEASE_ATTEMPT, {**key, "p_now": self._clock()}).rowcount == 1:
                 return True
             if conn.execute(_EVALUATION_ID, key).first() is None:
-                raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
+                raise NotFound(f"evaluation ({job_id!a}, {generation}, {index}) not found")
             return False
 
     def evaluations(self, job_id, generation):

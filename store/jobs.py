@@ -44,12 +44,22 @@ class JobRepository(abc.ABC):
         seed: int | None = None,
         workers: int = 1,
         basis_id: str | None = None,
+        start: Mapping[str, Any] | None = None,
     ) -> JobRecord:
         """Store a new job in status `queued` and return it (a fresh uuid4 string id).
 
-        `spec` is the JSON form of the TaskSpec (`spec.model_dump(mode="json")`).
+        `spec` is the JSON form of the TaskSpec (`spec.model_dump(mode="json")`). `start`:
+        where its search starts, {"from": what, "x0": full params} (None: the flat spline).
         Raises Conflict if `basis_id` names no stored basis.
         """
+
+    @abc.abstractmethod
+    def set_job_result(self, job_id: str, result: Mapping[str, Any]) -> None:
+        """Keep the finished job's result document (OptimizationResult.to_dict()); NotFound."""
+
+    @abc.abstractmethod
+    def job_result(self, job_id: str) -> dict[str, Any] | None:
+        """The job's result document, None before it has one; raises NotFound."""
 
     @abc.abstractmethod
     def get_job(self, job_id: str) -> JobRecord:
@@ -122,34 +132,56 @@ class JobRepository(abc.ABC):
 
 class SqlJobs(SqlBase, JobRepository):
     # ---- jobs ---------------------------------------------------------------------------
-    def create_job(self, spec, *, name, family, task, seed=None, workers=1, basis_id=None):
+    def create_job(self, spec, *, name, family, task, seed=None, workers=1, basis_id=None,
+                   start=None):
+        with self._write() as s:
+            return self._create_job_in(s, spec, name=name, family=family, task=task, seed=seed,
+                                       workers=workers, basis_id=basis_id, start=start)
+
+    def _create_job_in(self, s, spec, *, name, family, task, seed=None, workers=1, basis_id=None,
+                       start=None) -> JobRecord:
+        """create_job inside the session `s` (a caller's transaction)."""
         if workers < 1:
             raise ValueError("workers must be >= 1")
+        if basis_id is not None and s.get(Basis, basis_id) is None:
+            raise Conflict(f"basis {basis_id} not found")
+        job = Job(
+            id=str(uuid.uuid4()), name=name, family=family, task=task,
+            spec=_json(dict(spec), "spec"), seed=seed, workers=int(workers), status=QUEUED,
+            basis_id=basis_id, created_at=self._clock(), evaluations=0, iterations=0,
+            cancel_requested=False, start=None if start is None else _json(dict(start), "start"),
+        )  # fmt: skip
+        s.add(job)
+        s.flush()
+        return _job_record(job)
+
+    def set_job_result(self, job_id, result):
+        doc = _json(dict(result), "result")
         with self._write() as s:
-            if basis_id is not None and s.get(Basis, basis_id) is None:
-                raise Conflict(f"basis {basis_id} not found")
-            job = Job(
-                id=str(uuid.uuid4()), name=name, family=family, task=task,
-                spec=_json(dict(spec), "spec"), seed=seed, workers=int(workers), status=QUEUED,
-                basis_id=basis_id, created_at=self._clock(), evaluations=0, iterations=0,
-                cancel_requested=False,
-            )  # fmt: skip
-            s.add(job)
-            s.flush()
-            return _job_record(job)
+            res = s.execute(update(Job).where(Job.id == job_id).values(result=doc)
+                            .execution_options(synchronize_session=False))
+            if res.rowcount == 0:
+                raise NotFound(f"job {job_id!a} not found")
+
+    def job_result(self, job_id):
+        with self._read() as s:
+            row = s.execute(select(Job.id, Job.result).where(Job.id == job_id)).one_or_none()
+            if row is None:
+                raise NotFound(f"job {job_id!a} not found")
+            return row[1]
 
     def get_job(self, job_id):
         with self._read() as s:
             job = s.get(Job, job_id)
             if job is None:
-                raise NotFound(f"job {job_id} not found")
+                raise NotFound(f"job {job_id!a} not found")
             return _job_record(job)
 
     def cancel_requested(self, job_id):
         with self._read() as s:
             flag = s.execute(select(Job.cancel_requested).where(Job.id == job_id)).scalar()
             if flag is None:
-                raise NotFound(f"job {job_id} not found")
+                raise NotFound(f"job {job_id!a} not found")
             return bool(flag)
 
     def list_jobs(self, *, status=None, family=None, limit=50, offset=0):
@@ -194,7 +226,7 @@ class SqlJobs(SqlBase, JobRepository):
             if res.rowcount == 0:
                 current = s.scalar(select(Job.status).where(Job.id == job_id))
                 if current is None:
-                    raise NotFound(f"job {job_id} not found")
+                    raise NotFound(f"job {job_id!a} not found")
                 if current != status:
                     raise InvalidTransition(job_id, current, status)
             return _job_record(s.get(Job, job_id, populate_existing=True))

@@ -8,11 +8,18 @@ import uuid
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import Text, and_, cast, func, select
 
 from store.errors import Conflict, NotFound
 from store.models import Basis, Cmrt, CmrtParameter, Job
-from store.records import CMRT_ENTRY_FIELDS, WINNERS, BasisRecord, CmrtEntry, CmrtRecord
+from store.records import (
+    CMRT_ENTRY_FIELDS,
+    WINNERS,
+    BasisRecord,
+    CmrtEntry,
+    CmrtKey,
+    CmrtRecord,
+)
 from store.sql import (
     SqlBase,
     _basis_record,
@@ -68,6 +75,16 @@ class LibraryRepository(abc.ABC):
         self, family: str | None = None, *, limit: int | None = None, offset: int = 0
     ) -> tuple[list[CmrtRecord], int]:
         """Library CMRTs (of one family if given), newest first, and the total count."""
+
+    @abc.abstractmethod
+    def cmrt_keys(self, family: str) -> list[CmrtKey]:
+        """Every library CMRT of `family` as a `CmrtKey` (task parameters, objective, spline
+        layout; no curve or spec), newest first as `list_cmrts` orders them."""
+
+    @abc.abstractmethod
+    def cmrt_families(self) -> list[tuple[str, int]]:
+        """Every family of the library with its number of CMRTs, by name (one grouped,
+        indexed query: the library page's list of families)."""
 
     # ---- PCA bases ----------------------------------------------------------------------
     @abc.abstractmethod
@@ -140,7 +157,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
         with self._read() as s:
             row = s.get(Cmrt, cmrt_id)
             if row is None:
-                raise NotFound(f"CMRT {cmrt_id} not found")
+                raise NotFound(f"CMRT {cmrt_id!a} not found")
             return _cmrt_record(row)
 
     def find_cmrts(self, family, params, *, tolerance=None, character=None, limit=None):
@@ -196,6 +213,29 @@ class SqlLibrary(SqlBase, LibraryRepository):
             rows = s.scalars(q.limit(limit).offset(offset)).all()
             return [_cmrt_record(r) for r in rows], int(total)
 
+    def cmrt_keys(self, family):
+        # JSON columns keep a Python None as the JSON text `null`, not SQL NULL.
+        has_spec = and_(Cmrt.spec.is_not(None), cast(Cmrt.spec, Text) != "null")
+        q = (select(Cmrt.id, Cmrt.task_parameters, Cmrt.objective, Cmrt.knots, Cmrt.values,
+                    has_spec, Cmrt.created_at, Cmrt.preparation, Cmrt.decay, Cmrt.character)
+             .where(Cmrt.family == family).order_by(Cmrt.created_at.desc(), Cmrt.id))
+        with self._read() as s:
+            rows = s.execute(q).all()
+        return [
+            CmrtKey(id=cid, task_parameters={k: float(v) for k, v in tp.items()},
+                    objective=float(obj), knots=len(knots),
+                    vertical=bool(values) and isinstance(values[0], list),
+                    has_spec=bool(spec), created_at=created, preparation=float(prep),
+                    decay=float(dec), character=character)
+            for cid, tp, obj, knots, values, spec, created, prep, dec, character in rows
+        ]
+
+    def cmrt_families(self):
+        with self._read() as s:
+            rows = s.execute(select(Cmrt.family, func.count()).group_by(Cmrt.family)
+                             .order_by(Cmrt.family)).all()
+            return [(str(f), int(n)) for f, n in rows]
+
     # ---- PCA bases ----------------------------------------------------------------------
     def add_basis(self, *, family, k, mean, components, variance_explained, members, box=None):
         m = _json(mean, "mean")
@@ -223,7 +263,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
         with self._read() as s:
             row = s.get(Basis, basis_id)
             if row is None:
-                raise NotFound(f"basis {basis_id} not found")
+                raise NotFound(f"basis {basis_id!a} not found")
             return _basis_record(row)
 
 

@@ -95,6 +95,48 @@ class Job(Base):
     driver_owner: Mapped[str | None] = mapped_column(String(200))
     lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
     heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    #: Where the search started: {"from": what, "x0": full params} (None: the flat spline).
+    start: Mapped[Any | None] = mapped_column(JSON)
+    #: The finished job's result document (optim.result.OptimizationResult.to_dict()).
+    result: Mapped[Any | None] = mapped_column(JSON, deferred=True)
+
+
+class Family(Base):
+    """A family of CMRTs along one task parameter: its request and, once finished, its report;
+    its runs are ordinary jobs (`FamilyRun`)."""
+
+    __tablename__ = "families"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    #: The library family its members land in (the base spec's family).
+    family: Mapped[str] = mapped_column(String(100), index=True)
+    param: Mapped[str] = mapped_column(String(200))
+    #: The family request (optim.family.FamilySpec, JSON form).
+    spec: Mapped[Any] = mapped_column(JSON)
+    status: Mapped[str] = mapped_column(String(16), index=True)
+    error: Mapped[str | None] = mapped_column(Text)
+    cancel_requested: Mapped[bool] = mapped_column(Boolean)
+    #: Outcomes of the interpolated CMRTs at the members' values: [[value, outcome], ...].
+    probes: Mapped[Any | None] = mapped_column(JSON, deferred=True)
+    #: optim.family.family_report, once every run is finished.
+    report: Mapped[Any | None] = mapped_column(JSON, deferred=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
+
+
+class FamilyRun(Base):
+    """One run of a family's plan and the job that runs it (one job per run: the primary key
+    makes creating it idempotent when several drivers advance the family)."""
+
+    __tablename__ = "family_runs"
+
+    family_id: Mapped[str] = mapped_column(
+        String(36), ForeignKey("families.id", ondelete="CASCADE"), primary_key=True
+    )
+    run_id: Mapped[str] = mapped_column(String(100), primary_key=True)
+    job_id: Mapped[str] = mapped_column(
+        String(36), ForeignKey("jobs.id", ondelete="CASCADE"), index=True
+    )
 
 
 class Generation(Base):

@@ -68,6 +68,8 @@ class JobRecord:
     driver_owner: str | None
     lease_expires_at: datetime | None
     heartbeat_at: datetime | None
+    #: Where the search started: {"from": what, "x0": full params}; None: the flat spline.
+    start: dict[str, Any] | None = None
 
     @property
     def terminal(self) -> bool:
@@ -193,6 +195,53 @@ class CmrtEntry:
 class CmrtRecord(CmrtEntry):
     id: str
     created_at: datetime
+
+
+# ---- family states ------------------------------------------------------------------------
+FAMILY_RUNNING = "running"
+FAMILY_DONE = "done"
+FAMILY_STATUSES: tuple[str, ...] = (FAMILY_RUNNING, FAMILY_DONE, FAILED, CANCELLED)
+FAMILY_TERMINAL: frozenset[str] = frozenset({FAMILY_DONE, FAILED, CANCELLED})
+
+
+@dataclass(frozen=True)
+class FamilyRecord:
+    id: str
+    family: str
+    param: str
+    #: The family request (optim.family.FamilySpec JSON form).
+    spec: dict[str, Any]
+    status: str
+    error: str | None
+    cancel_requested: bool
+    created_at: datetime
+    finished_at: datetime | None
+    #: run id -> job id of every run started so far.
+    runs: dict[str, str]
+
+    @property
+    def terminal(self) -> bool:
+        return self.status in FAMILY_TERMINAL
+
+
+@dataclass(frozen=True)
+class CmrtKey:
+    """What picking library CMRTs by task parameter needs, without their curves and specs:
+    `LibraryRepository.cmrt_keys`."""
+
+    id: str
+    task_parameters: dict[str, float]
+    objective: float
+    #: Number of spline knots, and whether the CMRT has vertical control values.
+    knots: int
+    vertical: bool
+    #: Whether the entry stores the spec it was optimised for (interpolation needs it).
+    has_spec: bool
+    created_at: datetime
+    #: The clip around the task window (s) and the character, which interpolation keeps equal.
+    preparation: float = 0.0
+    decay: float = 0.0
+    character: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,9 @@ the HTTP service) may use the same database at once: every write that others rac
 
 The contract is split by aggregate, each part with its docstrings: `store.jobs.JobRepository`
 (jobs, driver lease), `store.evaluations.EvaluationRepository` (generations, evaluations),
-`store.library.LibraryRepository` (CMRT library, PCA bases); `Repository` is all three and
-`SqlRepository` their SQLAlchemy implementations together.
+`store.library.LibraryRepository` (CMRT library, PCA bases), `store.families.FamilyRepository`
+(families of CMRTs, whose runs are jobs); `Repository` is all four and `SqlRepository` their
+SQLAlchemy implementations together.
 
 Typical job flow (docs/service.md, "Architecture"):
 
@@ -33,16 +34,18 @@ Typical job flow (docs/service.md, "Architecture"):
 from __future__ import annotations
 
 from store.evaluations import EvaluationRepository, SqlEvaluations
+from store.families import FamilyRepository, SqlFamilies
 from store.jobs import JobRepository, SqlJobs
 from store.library import LibraryRepository, SqlLibrary
 from store.sql import Clock, utcnow
 
 
-class Repository(JobRepository, EvaluationRepository, LibraryRepository):
-    """Persistent state of jobs, generations, evaluations, the CMRT library and PCA bases."""
+class Repository(JobRepository, EvaluationRepository, LibraryRepository, FamilyRepository):
+    """Persistent state of jobs, generations, evaluations, the CMRT library, PCA bases and
+    families."""
 
 
-class SqlRepository(SqlJobs, SqlEvaluations, SqlLibrary, Repository):
+class SqlRepository(SqlJobs, SqlEvaluations, SqlLibrary, SqlFamilies, Repository):
     """`Repository` on SQLAlchemy (SQLite or PostgreSQL; engine from `store.db.make_engine`,
     schema from `store.db.init_db`). Thread-safe; use one per process.
 

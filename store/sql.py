@@ -68,7 +68,7 @@ def _job_record(j: Job) -> JobRecord:
         finished_at=j.finished_at, best_objective=j.best_objective, best_params=j.best_params,
         evaluations=j.evaluations, iterations=j.iterations,
         cancel_requested=bool(j.cancel_requested), driver_owner=j.driver_owner,
-        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at,
+        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at, start=j.start,
     )  # fmt: skip
 
 
@@ -147,11 +147,11 @@ class SqlBase:
             select(Job).where(Job.id == job_id).with_for_update(key_share=True)
         ).one_or_none()
         if job is None:
-            raise NotFound(f"job {job_id} not found")
+            raise NotFound(f"job {job_id!a} not found")
         return job
 
     @staticmethod
     def _require_job(s: Session, job_id: str) -> None:
         if s.scalar(select(Job.id).where(Job.id == job_id)) is None:
-            raise NotFound(f"job {job_id} not found")
+            raise NotFound(f"job {job_id!a} not found")
 

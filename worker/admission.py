@@ -84,4 +84,38 @@ def check(spec: TaskSpec, settings: Settings, *, dimension: int | None = None) -
     return b
 
 
-__all__ = ["FINAL_EVALUATIONS", "Budget", "BudgetExceeded", "budget", "check", "default_popsize"]
+def family_budget(fs: Any, settings: Settings) -> Budget:
+    """A family's budget: the sum over the runs of its plan (members under the main or the
+    warm rules, references, reduced runs searching k coordinates) and one evaluation per
+    probe; BudgetExceeded when it is above the same ceiling as a job's (the whole family is
+    admitted or nothing is)."""
+    from optim.family import MAIN, MEMBER, PROBES, REDUCED, WARM, member_spec, plan_runs
+
+    evaluations, sim = 0, 0.0
+    clip = 0.0
+    for run in plan_runs(fs):
+        if run.kind == PROBES:
+            spec = member_spec(fs, fs.sorted_values[0])
+            n = len(fs.values)
+            evaluations += n
+            sim += n * float(spec.clip.length)
+            continue
+        role = WARM if run.kind == MEMBER and run.warm_from is not None else MAIN
+        spec = member_spec(fs, run.value, role)
+        b = budget(spec, settings, dimension=fs.k if run.kind == REDUCED else None)
+        evaluations += b.evaluations
+        sim += b.sim_seconds
+        clip = max(clip, b.clip_seconds)
+    ceiling = settings.max_job_sim_seconds
+    if sim > ceiling:
+        raise BudgetExceeded(
+            f"values: the family's runs may simulate up to {sim:,.0f} s in all ({evaluations} "
+            f"evaluations), above this server's ceiling of {ceiling:,.0f} simulated seconds per "
+            f"job or family (CMRT_MAX_JOB_SIM_SECONDS); use fewer values or leave-out values, "
+            f"or lower optimize.max_evaluations / warm.max_evaluations")
+    return Budget(evaluations=evaluations, clip_seconds=clip, sim_seconds=sim,
+                  ceiling_sim_seconds=ceiling)
+
+
+__all__ = ["FINAL_EVALUATIONS", "Budget", "BudgetExceeded", "budget", "check", "default_popsize",
+           "family_budget"]

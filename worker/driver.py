@@ -50,6 +50,7 @@ from optim.loop import (
 )
 from optim.outcome import EvalOutcome
 from optim.pca import Basis
+from optim.run import result_of
 from optim.spline import decode, sample_curve
 from sim.errors import SpecError
 from sim.spec import TaskSpec, parse_spec
@@ -196,6 +197,15 @@ class StoreRunState:
             d.on_generation(generation)
 
 
+def _with_start_sigma(spec: TaskSpec, start: dict[str, Any] | None) -> TaskSpec:
+    """The spec whose optimizer starts the job: a start may set a smaller initial step
+    (`sigma0`, box units) than the spec's, as a start from the library does."""
+    if not start or start.get("sigma0") is None:
+        return spec
+    opt = spec.optimize.model_copy(update={"sigma0": float(start["sigma0"])})
+    return spec.model_copy(update={"optimize": opt})
+
+
 class JobDriver:
     def __init__(
         self,
@@ -283,10 +293,15 @@ class JobDriver:
         return status
 
     def _space(self, job: Any, spec: TaskSpec) -> SearchSpace:
+        x0 = None if not job.start else job.start.get("x0")
         if job.basis_id is None:
-            return SearchSpace.of(spec)
+            try:
+                return SearchSpace.of(spec, None, x0)
+            except Exception as err:  # noqa: BLE001 - a start of the wrong length
+                raise JobFailedError(f"start: {err}") from None
         try:
-            return SearchSpace.of(spec, basis_from_record(self.repo.get_basis(job.basis_id)))
+            return SearchSpace.of(spec, basis_from_record(self.repo.get_basis(job.basis_id)),
+                                  x0)
         except NotFound:
             raise JobFailedError(f"basis {job.basis_id!r} does not exist") from None
         except Exception as err:  # noqa: BLE001 - BasisError, bad stored box
@@ -307,15 +322,24 @@ class JobDriver:
         self.space = self._space(job, spec)
         state = StoreRunState(self)
         opt = state.restore() or new_optimizer(
-            spec, self.space, int(job.seed if job.seed is not None else 0))
+            _with_start_sigma(spec, job.start), self.space,
+            int(job.seed if job.seed is not None else 0))
         if self._took_over is not None:
             self._log_takeover(opt.iterations)
         t_job = time.monotonic()
         evaluator = StoreEvaluator(self, spec)
         stop_rule = run_generations(opt, self.space, evaluator, state)
-        if self.repo.job_cmrt(self.job_id) is None:  # a driver may have died after adding it
-            final = final_evaluation(opt, self.space, evaluator)
+        # A driver may have died after adding the entry or the result: the final evaluations
+        # are stored, so asking them again costs no simulation.
+        final = final_evaluation(opt, self.space, evaluator)
+        if self.repo.job_cmrt(self.job_id) is None:
             self._add_to_library(job, spec, final)
+        if self.repo.job_result(self.job_id) is None:
+            wall = sum(g.wall_time for g in self.repo.generations(self.job_id))
+            self.repo.set_job_result(self.job_id, result_of(
+                spec, opt, self.space, final, stop_rule=stop_rule,
+                seed=int(job.seed if job.seed is not None else 0), wall_seconds=wall,
+            ).to_dict())
         status = STOPPED if stop_rule in STOPPED_RULES else CONVERGED
         log.info("job %s: %s (%s) after %d generations, %.1f s", self.job_id, status, stop_rule,
                  opt.iterations, time.monotonic() - t_job)

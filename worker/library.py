@@ -3,17 +3,18 @@ by the API; no HTTP here)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
-from optim.errors import BasisError, InterpolationError
+from optim.errors import BasisError, InterpolationError, ParamsError
 from optim.interpolate import interpolate
 from optim.pca import DEFAULT_K, build_basis
 from optim.result import OptimizationResult
-from optim.spline import sample_curve
-from store import CmrtRecord, Repository
+from optim.spline import CmrtSpline, encode, sample_curve
+from sim.spec import TaskSpec
+from store import CmrtKey, CmrtRecord, Repository
 
 #: Largest number of library CMRTs read for one interpolation or basis.
 MAX_MEMBERS = 10_000
@@ -66,19 +67,24 @@ def interpolate_library(
     *,
     filters: Mapping[str, float] | None = None,
     extrapolate: bool = False,
+    like: Callable[[CmrtKey], bool] | None = None,
 ) -> dict[str, Any]:
     """Interpolated CMRT of `family` at task parameter `key` = `value` among the library CMRTs
-    (optionally only those whose other task parameters equal `filters`)."""
-    members = _family(repo, family)
+    (optionally only those whose other task parameters equal `filters`, and those `like`
+    accepts)."""
+    keys = [k for k in repo.cmrt_keys(family)[:MAX_MEMBERS] if k.has_spec]
+    if like is not None:
+        keys = [k for k in keys if like(k)]
     if filters:
-        members = [
-            r for r in members
-            if all(abs(r.task_parameters.get(k, np.nan) - v) <= 1e-9 * max(1.0, abs(v))
-                   for k, v in filters.items())
+        keys = [
+            k for k in keys
+            if all(abs(k.task_parameters.get(n, np.nan) - v) <= 1e-9 * max(1.0, abs(v))
+                   for n, v in filters.items())
         ]
-    members = [r for r in members if key in r.task_parameters]
-    if not members:
+    keys = [k for k in keys if key in k.task_parameters]
+    if not keys:
         raise InterpolationError(f"no library CMRTs of family {family!r} with parameter {key!r}")
+    members = [repo.get_cmrt(cid) for cid in _neighbour_ids(keys, key, float(value))]
     by_id = {r.id: r for r in members}
     out = interpolate([record_to_result(r) for r in members], value, key=key,
                       extrapolate=extrapolate)
@@ -105,6 +111,82 @@ def interpolate_library(
         "vertical_values": d["vertical_values"],
         "curve": sample_curve(spline),
     }
+
+
+#: CMA-ES step (box units) of a job started from the library: the continuation members' warm
+#: sigma (optim.family.WarmConfig), small enough to stay on the neighbours' branch of optima.
+LIBRARY_WARM_SIGMA0 = 0.05
+
+
+def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
+    """Where a new job of `spec` starts when the library knows its neighbourhood: the CMRT
+    interpolated along one task parameter between library CMRTs of the spec's family on
+    either side (the others equal), or the stored CMRT at exactly these parameters, encoded
+    for this spec; None when there is none (the job starts from the flat spline). The start
+    records what it came from and the small step it is searched with."""
+    params = spec.task_parameters()
+    family = spec.family_name
+    character = spec.character.model_dump(mode="json")
+
+    def like(k: CmrtKey) -> bool:  # the same clip around the task window, the same character
+        return (abs(k.preparation - spec.clip.preparation) <= 1e-9
+                and abs(k.decay - spec.clip.decay) <= 1e-9 and k.character == character
+                and k.knots == spec.cmrt.knots and k.vertical == spec.cmrt.vertical)
+
+    for key in sorted(params):
+        filters = {k: v for k, v in params.items() if k != key}
+        try:
+            out = interpolate_library(repo, family, key, params[key], filters=filters,
+                                      like=like)
+        except InterpolationError:
+            continue
+        vy = out["vertical_values"]
+        spline = CmrtSpline(out["length"], np.asarray(out["knot_times"]),
+                            np.asarray(out["values"]),
+                            None if vy is None else np.asarray(vy))
+        try:
+            x0 = encode(spec, spline)
+        except ParamsError:  # another spline layout: not a start for this spec
+            continue
+        ids = [n["id"] for n in out["neighbours"]]
+        what = (f"library CMRT {ids[0]} ({key} = {params[key]:g})" if out["exact"] else
+                f"library: interpolated along {key} between " + " and ".join(
+                    f"{n[key]:g}" for n in out["neighbours"]) + f" (weight {out['weight']:.3f})")
+        return {"from": what, "x0": [float(v) for v in x0], "sigma0": LIBRARY_WARM_SIGMA0,
+                "cmrts": ids}
+    return None
+
+
+def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
+    """The library CMRTs `optim.interpolate.interpolate` would read among `keys` (ordered as
+    stored, newest first), so that only those are loaded with their specs and curves: at each
+    value of `key` the lowest objective (the first on ties, as `interpolate` keeps it), then
+    the sample itself or the two around `value` (at an end: the two nearest). The whole
+    family's spline layouts must agree, as `interpolate` requires of what it is given."""
+    first = keys[0]
+    for k in keys:
+        if (k.knots, k.vertical) != (first.knots, first.vertical):
+            raise InterpolationError(
+                f"result {k.id!r} has a different spline layout than {first.id!r}")
+    best: dict[float, CmrtKey] = {}
+    for k in keys:
+        v = k.task_parameters[key]
+        if v not in best or k.objective < best[v].objective:
+            best[v] = k
+    xs = sorted(best)
+    if len(xs) < 2 or not np.isfinite(value):
+        return [k.id for k in keys]  # `interpolate` gives the reason
+    if value in best:
+        other = xs[1] if xs[0] == value else xs[0]
+        return [best[value].id, best[other].id]
+    if value < xs[0]:
+        a, b = xs[0], xs[1]
+    elif value > xs[-1]:
+        a, b = xs[-2], xs[-1]
+    else:
+        j = int(np.searchsorted(xs, value))
+        a, b = xs[j - 1], xs[j]
+    return [best[a].id, best[b].id]
 
 
 def build_library_basis(repo: Repository, family: str, k: int = DEFAULT_K) -> str:

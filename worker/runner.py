@@ -2,9 +2,11 @@
 
 `JobRunner.submit(job_id)` starts a driver for a new job at once; a scanner thread looks every
 `scan_interval` s for queued or running jobs without a live lease (`orphaned_jobs`: never driven,
-or their driver died with its process) and drives them. So a restarted API resumes its running
-jobs from their last stored generation once their lease has expired, and several API replicas
-share the jobs safely (the lease admits one driver per job).
+or their driver died with its process) and drives them, and advances every unfinished family
+one step (`worker.family.FamilyDriver`: its ready runs become jobs, its checks are computed).
+So a restarted API resumes its running jobs from their last stored generation once their lease
+has expired, and several API replicas share the jobs safely (the lease admits one driver per
+job; a family's runs are created at most once).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from cmrt.settings import Settings
 from store import Repository
 from worker.driver import JobDriver, make_owner
 from worker.executors import GenerationExecutor
+from worker.family import FamilyDriver
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +32,7 @@ class JobRunner:
         config: Settings,
         *,
         max_drivers: int = 32,
+        family_driver: FamilyDriver | None = None,
     ) -> None:
         self.repo = repo
         self.executor = executor
@@ -40,6 +44,7 @@ class JobRunner:
         self._active: dict[str, threading.Thread] = {}
         self._scanner: threading.Thread | None = None
         self.finished: dict[str, str | None] = {}
+        self.families = family_driver or FamilyDriver(repo, submit=self.submit)
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -56,6 +61,7 @@ class JobRunner:
             self._scanner.join(timeout=timeout)
         for t in list(self._active.values()):
             t.join(timeout=timeout)
+        self.families.close()
 
     # -- drivers -----------------------------------------------------------------------------
     def submit(self, job_id: str) -> bool:
@@ -89,7 +95,24 @@ class JobRunner:
                     self.submit(job.id)
             except Exception as err:  # noqa: BLE001 - database down: try again next round
                 log.warning("job scan failed: %s", err)
+            self.advance_families()
             self.shutdown.wait(self.config.scan_interval)
+
+    def advance_families(self) -> None:
+        """One step of every unfinished family (a family's error is logged, never raised:
+        the next scan tries again)."""
+        try:
+            active = self.repo.active_families()
+        except Exception as err:  # noqa: BLE001 - database down: try again next round
+            log.warning("family scan failed: %s", err)
+            return
+        for fam in active:
+            if self.shutdown.is_set():
+                return
+            try:
+                self.families.advance(fam.id)
+            except Exception:  # noqa: BLE001
+                log.exception("family %s: step failed; retried next scan", fam.id)
 
     @property
     def active(self) -> list[str]:

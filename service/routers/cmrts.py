@@ -54,6 +54,15 @@ def find_cmrts(
             "limit": limit, "offset": offset}
 
 
+@router.get("/families", summary="The library's families and their sizes",
+            response_model=schemas.LibraryFamilies)
+def library_families(repo: RepoDep) -> dict[str, Any]:
+    """`GET /cmrts/families`: every family name in the library with its number of CMRTs, by
+    name (one grouped query; what a client lists before asking for one family's CMRTs)."""
+    items = [{"family": f, "count": n} for f, n in repo.cmrt_families()]
+    return {"items": items, "total": len(items)}
+
+
 @router.get("/interpolate", summary="Interpolate a CMRT",
             responses=error_responses(422), openapi_extra=task_parameters_doc(True))
 def interpolate_cmrt(

@@ -10,6 +10,7 @@ from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
 from service.deps import ServicesDep
+from service.errors import DATABASE_RETRY_AFTER_S
 from service.openapi import error_responses
 from worker.executors import CeleryExecutor
 
@@ -30,14 +31,18 @@ def _check(name: str, probe: Callable[[], Any]) -> str:
 @router.get("/health", summary="Database and broker health", responses=error_responses(503))
 def health(svc: ServicesDep) -> JSONResponse:
     """`{"status": "ok" | "degraded", "database": "ok" | "error", "broker": ...}`: the state
-    only; the error behind an "error" goes to the log (it may quote SQL or a URL)."""
+    only; the error behind an "error" goes to the log (it may quote SQL or a URL). Degraded:
+    503 with `Retry-After` and a `detail` naming what is unreachable."""
     checks: dict[str, Any] = {"database": _check("database", lambda: svc.repo.list_jobs(limit=1))}
     if isinstance(svc.executor, CeleryExecutor):
         checks["broker"] = _check("broker", lambda: svc.executor.ping(timeout=2.0))
     else:
         checks["broker"] = "none (embedded local process pool)"
-    ok = "error" not in checks.values()
+    down = [k for k, v in checks.items() if v == "error"]
     checks["executor"] = svc.executor.kind
     checks["drivers"] = len(svc.runner.active)
-    return JSONResponse({"status": "ok" if ok else "degraded", **checks},
-                        status_code=200 if ok else 503)
+    if not down:
+        return JSONResponse({"status": "ok", **checks})
+    return JSONResponse({"status": "degraded", **checks,
+                         "detail": "; ".join(f"{k}: unreachable" for k in down)},
+                        status_code=503, headers={"Retry-After": str(DATABASE_RETRY_AFTER_S)})

@@ -7,6 +7,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
+from optim.cmaes import MIN_DIMENSION
 from optim.errors import BasisError
 from optim.spline import decode, sample_curve
 from service import schemas
@@ -20,30 +21,42 @@ from sim.spec import parse_spec
 from store import NotFound
 from store.records import JOB_STATUSES
 from worker import admission
+from worker.library import library_start
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 #: Largest seed of a job (CMA-ES takes a 31-bit seed).
 MAX_SEED = 2**31 - 1
-_ENVELOPE_KEYS = {"spec", "seed", "basis"}
+_ENVELOPE_KEYS = {"spec", "seed", "basis", "start"}
+#: `start`: "library" (default) starts from the library's CMRT at the spec's task parameters
+#: when it has one (interpolated between neighbours, or stored there), else the flat spline;
+#: "cold" always from the flat spline.
+START_CHOICES = ("library", "cold")
 JobStatus = Literal[JOB_STATUSES]  # type: ignore[valid-type]
 
 
-def _envelope(data: Any, seed: int | None, basis: str | None) -> tuple[Any, int | None, str | None]:
-    """Split `{"spec": ..., "seed": n, "basis": id}` (the body values win over the query's)."""
+def _envelope(data: Any, seed: int | None, basis: str | None, start: str
+              ) -> tuple[Any, int | None, str | None, str]:
+    """Split `{"spec": ..., "seed": n, "basis": id, "start": how}` (the body values win over
+    the query's)."""
     if not (isinstance(data, dict) and "spec" in data):
-        return data, seed, basis
+        return data, seed, basis, start
     extra = set(data) - _ENVELOPE_KEYS
     if extra:
-        raise ApiError(422, f"{sorted(extra)[0]}: unknown field (allowed: spec, seed, basis)")
+        raise ApiError(422, f"{sorted(extra)[0]}: unknown field (allowed: spec, seed, basis, "
+                            "start)")
     env_seed, env_basis = data.get("seed"), data.get("basis")
     if env_seed is not None and (not isinstance(env_seed, int) or isinstance(env_seed, bool)
                                  or not 0 <= env_seed <= MAX_SEED):
         raise ApiError(422, "seed: must be an integer in [0, 2^31)")
     if env_basis is not None and (not isinstance(env_basis, str) or len(env_basis) > 64):
         raise ApiError(422, "basis: must be a basis id (string)")
+    env_start = data.get("start")
+    if env_start is not None and env_start not in START_CHOICES:
+        raise ApiError(422, f"start: must be one of {', '.join(START_CHOICES)}")
     return (data["spec"], env_seed if env_seed is not None else seed,
-            env_basis if env_basis is not None else basis)
+            env_basis if env_basis is not None else basis,
+            env_start if env_start is not None else start)
 
 
 def _check_basis(repo: Any, basis: str, spec: Any) -> int:
@@ -58,6 +71,9 @@ def _check_basis(repo: Any, basis: str, spec: Any) -> int:
         b.check_spec(spec)
     except BasisError as err:
         raise ApiError(422, f"basis: {err}") from None
+    if b.k < MIN_DIMENSION:
+        raise ApiError(422, f"basis: {basis!r} has k = {b.k} component; a search needs at least "
+                            f"{MIN_DIMENSION} (pycma's update fails on one coordinate)")
     return b.k
 
 
@@ -72,11 +88,15 @@ async def submit_job(
     svc: ServicesDep,
     seed: Annotated[int | None, Query(ge=0, le=MAX_SEED)] = None,
     basis: Annotated[str | None, Query(max_length=64)] = None,
+    start: Annotated[Literal["library", "cold"], Query(
+        description="library: start from the library's CMRT at these task parameters when "
+                    "there is one (interpolated or stored; the job's `start` says which); "
+                    "cold: from the flat spline")] = "library",
 ) -> JSONResponse:
     """Body: a task spec (as the CLI's YAML/JSON files), or `{"spec": {...}, "seed": n,
     "basis": "<basis id>"}`. 202 with the job's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
-    data, seed, basis = _envelope(data, seed, basis)
+    data, seed, basis, start = _envelope(data, seed, basis, start)
     try:
         spec = parse_spec(data, "spec")
     except SpecError as err:
@@ -86,9 +106,10 @@ async def submit_job(
         budget = admission.check(spec, svc.settings, dimension=k)
     except admission.BudgetExceeded as err:
         raise ApiError(422, str(err)) from None
+    warm = library_start(svc.repo, spec) if start == "library" and basis is None else None
     job = svc.repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task_type,
-                              seed=0 if seed is None else seed, basis_id=basis)
+                              seed=0 if seed is None else seed, basis_id=basis, start=warm)
     if svc.run_drivers:
         svc.runner.submit(job.id)
     url = url_for(request, "get_job", job_id=job.id)

@@ -46,6 +46,14 @@ def dashboard_library() -> HTMLResponse:
     return _page("dash/library.html")
 
 
+@router.get("/dashboard/families/{family_id}", response_class=HTMLResponse,
+            include_in_schema=False)
+def dashboard_family(family_id: Annotated[str, Path(max_length=64)]) -> HTMLResponse:
+    """One family: its runs and progress, the members' curves overlaid, and once done the
+    checks beside the paper's Table 2 (it reads `GET /families/{id}?curves=true`)."""
+    return _page("dash/family.html")
+
+
 @router.get("/docs", response_class=HTMLResponse, include_in_schema=False)
 def docs() -> HTMLResponse:
     """Swagger UI on /openapi.json, its assets served from service/static/swagger-ui (no CDN:

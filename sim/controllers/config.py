@@ -23,17 +23,16 @@ Contract of a `ControllerConfig` (a pydantic model with a `type: Literal[...]` t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import (
-    Field,
     SerializerFunctionWrapHandler,
     model_serializer,
     model_validator,
 )
 
-from sim.specbase import StrictModel
+from sim.specbase import StrictModel, quantity
 
 if TYPE_CHECKING:
     from sim.character import Character
@@ -48,7 +47,11 @@ GAIN_NAMES: tuple[str, ...] = ("k_l", "d_l", "d_l_vertical", "k_t", "d_t", "b_l"
 #: The type a `controller` block without `type` has.
 DEFAULT_CONTROLLER = "momentum"
 
-_Gain = Annotated[float, Field(gt=0.0, le=1e4)] | None
+#: The range of a gain or weight override (0 is not a gain: a term is switched off by a
+#: schedule's `set`); cop_box, in metres, is also bounded by the character's support.
+_STIFFNESS = quantity(0.001, 1e4, "s^-2")
+_DAMPING = quantity(0.001, 1e4, "s^-1")
+_WEIGHT = quantity(0.001, 1e4, "(weight)")
 
 
 @dataclass(frozen=True)
@@ -92,18 +95,18 @@ class MomentumConfig(ControllerConfig):
 
     type: Literal["momentum"] = "momentum"
     stepping: bool = False
-    k_l: _Gain = None
-    d_l: _Gain = None
-    d_l_vertical: _Gain = None
-    k_t: _Gain = None
-    d_t: _Gain = None
-    b_l: _Gain = None
-    b_h: _Gain = None
-    b_t: _Gain = None
-    b_p: _Gain = None
-    cop_box: _Gain = None
-    response_delay: Annotated[float, Field(ge=0.0, le=1.0)] | None = None
-    feet_fixed: dict[str, Annotated[float, Field(gt=0.0, le=1e4)]] | None = None
+    k_l: _STIFFNESS | None = None
+    d_l: _DAMPING | None = None
+    d_l_vertical: _DAMPING | None = None
+    k_t: _STIFFNESS | None = None
+    d_t: _DAMPING | None = None
+    b_l: _WEIGHT | None = None
+    b_h: _WEIGHT | None = None
+    b_t: _WEIGHT | None = None
+    b_p: _WEIGHT | None = None
+    cop_box: quantity(0.001, 1.0, "m") | None = None
+    response_delay: quantity(0.0, 1.0, "s") | None = None
+    feet_fixed: dict[str, quantity(0.001, 1e4, "in the gain's unit")] | None = None
 
     schedules_gains: ClassVar[bool] = True
 

@@ -63,10 +63,9 @@ momentum controller's foot rule.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
 
 from sim.character import ROOT_DOF, Character
 from sim.controllers.base import Cmrt, Controller, Observation
@@ -74,6 +73,7 @@ from sim.controllers.config import ControllerConfig, ControllerContext
 from sim.controllers.momentum import FOOT_LIFT_LIMIT
 from sim.dynamics import ModelArrays, forward_kinematics
 from sim.errors import SimError
+from sim.specbase import quantity
 from sim.trajectory import PoseTrajectory
 
 #: Default position gain (s^-2): torque per radian per kg m^2 carried (10 rad/s squared).
@@ -336,9 +336,9 @@ class PdConfig(ControllerConfig):
     """The gains shared by both PD servos (see sim.controllers.pd)."""
 
     #: Position gain (s^-2) per kg m^2 a hinge carries.
-    k1: Annotated[float, Field(gt=0.0, le=1e4)] = DEFAULT_K1
+    k1: quantity(0.001, 1e4, "s^-2 per kg m^2") = DEFAULT_K1
     #: Velocity gain (s^-1) per kg m^2 a hinge carries.
-    k2: Annotated[float, Field(gt=0.0, le=1e3)] = DEFAULT_K2
+    k2: quantity(0.001, 1e3, "s^-1 per kg m^2") = DEFAULT_K2
     #: Evaluate the law at the predicted next-step state (stable PD); false: the plain
     #: explicit law, which ODE's explicit torques make diverge at the default gains.
     stable: bool = True
@@ -372,7 +372,7 @@ class PdWorldConfig(PdConfig):
     `person` (egocentric: the root left free)."""
 
     type: Literal["pd_world"]
-    delta: Annotated[float, Field(ge=0.001, le=0.5)] = DEFAULT_DELTA
+    delta: quantity(0.001, 0.5, "s") = DEFAULT_DELTA
     root: Literal["absolute", "person"] = "absolute"
 
     space: ClassVar[str] = "world"

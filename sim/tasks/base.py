@@ -37,7 +37,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from sim.props import PropDef
-from sim.specbase import StrictModel
+from sim.specbase import StrictModel, quantity
 from sim.trajectory import MotionDef
 
 if TYPE_CHECKING:
@@ -45,6 +45,16 @@ if TYPE_CHECKING:
 
 #: A pose target's angles (degrees) must stay inside this range.
 MAX_TARGET_DEGREES = 180.0
+#: The longest clip (s, as sim.spec's): the bound of every time a task block sets.
+MAX_CLIP_SECONDS = 20.0
+#: The shortest motion (s): one simulation step (sim.physics.DT), as the clip's task window.
+MIN_MOTION_SECONDS = 0.001
+#: A joint angle of a pose target, degrees relative to the standing pose.
+Angle = quantity(-MAX_TARGET_DEGREES, MAX_TARGET_DEGREES, "degrees")
+#: {joint name: angle}: a pose target.
+Pose = dict[str, Angle]
+#: A time from the clip's start (s).
+ClipTime = quantity(0.0, MAX_CLIP_SECONDS, "s")
 
 
 def check_pose(pose: dict[str, float], character: Character, where: str) -> None:

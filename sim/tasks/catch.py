@@ -22,14 +22,12 @@ not feasible to catch the ball"). `task_success`: the ball is held at the end.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
-
-from pydantic import Field
+from typing import Any, Literal
 
 from sim.dynamics import GRAVITY
 from sim.props import PropDef
-from sim.specbase import StrictModel
-from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
+from sim.specbase import StrictModel, quantity
+from sim.tasks.base import ClipTime, Pose, Task, TaskConfig, check_pose, pose_offsets
 
 BALL = "ball"
 #: The penalty of a missed ball, in units of the fall penalty's unit.
@@ -39,8 +37,8 @@ MISS_PENALTY_UNITS = 2.0
 class Ball(StrictModel):
     """The ball: mass (kg) and radius (m); a 7 kg medicine ball is about 0.22 m across."""
 
-    mass: Annotated[float, Field(gt=0.0, le=50.0)] = 7.0
-    radius: Annotated[float, Field(ge=0.03, le=0.4)] = 0.11
+    mass: quantity(0.05, 50.0, "kg") = 7.0
+    radius: quantity(0.03, 0.4, "m") = 0.11
 
 
 class Throw(StrictModel):
@@ -48,9 +46,9 @@ class Throw(StrictModel):
     height, `flight` s before it reaches them at `arrival` (s from the clip start; default the
     task window's start)."""
 
-    distance: Annotated[float, Field(gt=0.0, le=10.0)] = 2.0
-    flight: Annotated[float, Field(ge=0.1, le=3.0)] = 0.7
-    arrival: Annotated[float, Field(ge=0.0)] | None = None
+    distance: quantity(0.1, 10.0, "m") = 2.0
+    flight: quantity(0.1, 3.0, "s") = 0.7
+    arrival: ClipTime | None = None
 
 
 class CatchConfig(TaskConfig):
@@ -58,10 +56,10 @@ class CatchConfig(TaskConfig):
     flight, arrival}, reach?}`."""
 
     type: Literal["catch"] = "catch"
-    hold: dict[str, float]
+    hold: Pose
     ball: Ball = Ball()
     throw: Throw = Throw()
-    reach: Annotated[float, Field(ge=0.0, le=0.2)] = 0.02
+    reach: quantity(0.0, 0.2, "m") = 0.02
 
     def arrival(self, clip: Any) -> float:
         return self.throw.arrival if self.throw.arrival is not None else clip.task_start

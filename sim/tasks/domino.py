@@ -20,17 +20,20 @@ that stands and topples it (whose objective is at most F0 / 2), and a larger til
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import model_validator
 
 from sim.props import PropDef
-from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
+from sim.specbase import quantity
+from sim.tasks.base import Pose, Task, TaskConfig, check_pose, pose_offsets
 from sim.trajectory import MotionDef
 
 #: Name of the block prop in the physics (and in the replay frames).
 BLOCK = "block"
 MAX_BLOCK_MASS_KG = 1000.0
+#: Lightest block (kg): ODE refuses a body of a few micrograms (dMassCheck aborts the process).
+MIN_BLOCK_MASS_KG = 1.0
 
 
 class DominoConfig(TaskConfig):
@@ -45,14 +48,14 @@ class DominoConfig(TaskConfig):
     """
 
     type: Literal["domino"] = "domino"
-    mass: Annotated[float, Field(gt=0.0, le=MAX_BLOCK_MASS_KG)]
-    width: Annotated[float, Field(gt=0.02, le=2.0)] = 0.15
-    height: Annotated[float, Field(gt=0.1, le=5.0)] = 1.6
-    distance: Annotated[float, Field(ge=0.0, le=3.0)] = 0.5
-    friction: Annotated[float, Field(gt=0.0, le=5.0)] = 0.8
-    ready: dict[str, float]
-    push: dict[str, float]
-    ready_time: Annotated[float, Field(gt=0.0, le=10.0)] = 0.6
+    mass: quantity(MIN_BLOCK_MASS_KG, MAX_BLOCK_MASS_KG, "kg")
+    width: quantity(0.02, 2.0, "m") = 0.15
+    height: quantity(0.1, 5.0, "m") = 1.6
+    distance: quantity(0.0, 3.0, "m") = 0.5
+    friction: quantity(0.01, 5.0, "(coefficient)") = 0.8
+    ready: Pose
+    push: Pose
+    ready_time: quantity(0.01, 10.0, "s") = 0.6
 
     @model_validator(mode="after")
     def _shape(self) -> DominoConfig:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
+from sim.tasks.base import Pose, Task, TaskConfig, check_pose, pose_offsets
 from sim.trajectory import MotionDef
 
 
@@ -14,7 +14,7 @@ class PoseChangeConfig(TaskConfig):
     theirs) over the task window."""
 
     type: Literal["pose_change"] = "pose_change"
-    target: dict[str, float]
+    target: Pose
 
     def check(self, spec: Any, character: Any) -> None:
         check_pose(self.target, character, "task.target")

@@ -28,21 +28,22 @@ from __future__ import annotations
 
 import math
 from functools import cached_property
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field
 
 from sim.dynamics import ModelArrays, forward_kinematics
 from sim.props import PropDef
-from sim.specbase import StrictModel
-from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
+from sim.specbase import StrictModel, count, quantity
+from sim.tasks.base import Pose, Task, TaskConfig, check_pose, pose_offsets
 from sim.trajectory import MotionDef
 
 #: Names of the props in the physics (and in the replay frames): the box and the links.
 BOX = "box"
 LINK = "chain"
 MAX_BOX_MASS_KG = 500.0
+#: Lightest box (kg): ODE refuses a body of a few micrograms (dMassCheck aborts the process).
+MIN_BOX_MASS_KG = 1.0
 #: A chain whose links lie on a parabola of this sag (m) or more is not "held between".
 MAX_SAG = 2.0
 
@@ -50,10 +51,10 @@ MAX_SAG = 2.0
 class Chain(StrictModel):
     """The chain: total mass (kg), number of links, total length (m), link radius (m)."""
 
-    mass: Annotated[float, Field(gt=0.0, le=50.0)] = 2.25
-    links: Annotated[int, Field(ge=2, le=20)] = 6
-    length: Annotated[float, Field(gt=0.1, le=5.0)] = 1.4
-    radius: Annotated[float, Field(ge=0.005, le=0.05)] = 0.015
+    mass: quantity(0.1, 50.0, "kg") = 2.25
+    links: count(2, 20, "links") = 6
+    length: quantity(0.1, 5.0, "m") = 1.4
+    radius: quantity(0.005, 0.05, "m") = 0.015
 
 
 class PullConfig(TaskConfig):
@@ -66,15 +67,15 @@ class PullConfig(TaskConfig):
     are the character's (the example specs carry them)."""
 
     type: Literal["pull"] = "pull"
-    mass: Annotated[float, Field(gt=0.0, le=MAX_BOX_MASS_KG)]
+    mass: quantity(MIN_BOX_MASS_KG, MAX_BOX_MASS_KG, "kg")
     chain: Chain = Chain()
-    width: Annotated[float, Field(ge=0.05, le=2.0)] = 0.5
-    height: Annotated[float, Field(ge=0.05, le=2.0)] = 0.3
-    distance: Annotated[float, Field(ge=0.0, le=5.0)] = 1.5
-    friction: Annotated[float, Field(gt=0.0, le=5.0)] = 0.6
-    success: Annotated[float, Field(gt=0.0, le=2.0)] = 0.05
-    hold: dict[str, float]
-    pull: dict[str, float]
+    width: quantity(0.05, 2.0, "m") = 0.5
+    height: quantity(0.05, 2.0, "m") = 0.3
+    distance: quantity(0.0, 5.0, "m") = 1.5
+    friction: quantity(0.01, 5.0, "(coefficient)") = 0.6
+    success: quantity(0.01, 2.0, "m") = 0.05
+    hold: Pose
+    pull: Pose
 
     def check(self, spec: Any, character: Any) -> None:
         check_pose(self.hold, character, "task.hold")

@@ -33,12 +33,22 @@ from typing import Annotated, Any, Literal
 from pydantic import Field
 
 from sim.props import Hanging, PropDef
-from sim.specbase import StrictModel
-from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
+from sim.specbase import StrictModel, count, quantity
+from sim.tasks.base import (
+    MIN_MOTION_SECONDS,
+    ClipTime,
+    Pose,
+    Task,
+    TaskConfig,
+    check_pose,
+    pose_offsets,
+)
 from sim.trajectory import MotionDef
 
 BAG = "bag"
 MAX_BAG_MASS_KG = 500.0
+#: Lightest bag (kg): ODE refuses a body of a few micrograms (dMassCheck aborts the process).
+MIN_BAG_MASS_KG = 1.0
 MAX_MOTIONS = 8  # guard steps, punches
 #: A contact point within this distance (m) of a hand sphere's surface is the hand's.
 HAND_CONTACT_TOLERANCE = 0.005
@@ -50,9 +60,9 @@ class Guard(StrictModel):
     """A step of the guard: `target` (degrees relative to the standing pose) reached by a
     quintic ease over `duration` s from `start` s of the clip."""
 
-    target: dict[str, float]
-    start: Annotated[float, Field(ge=0.0)]
-    duration: Annotated[float, Field(gt=0.0, le=5.0)]
+    target: Pose
+    start: ClipTime
+    duration: quantity(MIN_MOTION_SECONDS, 5.0, "s")
 
 
 class Strike(StrictModel):
@@ -61,9 +71,9 @@ class Strike(StrictModel):
     or ends (the retract). A punch's duration defaults to the task window, the retract's to
     half the decay."""
 
-    target: dict[str, float]
-    delay: Annotated[float, Field(ge=0.0, le=5.0)] = 0.0
-    duration: Annotated[float, Field(gt=0.0, le=5.0)] | None = None
+    target: Pose
+    delay: quantity(0.0, 5.0, "s") = 0.0
+    duration: quantity(MIN_MOTION_SECONDS, 5.0, "s") | None = None
 
 
 class PunchConfig(TaskConfig):
@@ -74,13 +84,13 @@ class PunchConfig(TaskConfig):
     guard: Annotated[list[Guard], Field(min_length=1, max_length=MAX_MOTIONS)]
     punches: Annotated[list[Strike], Field(min_length=1, max_length=MAX_MOTIONS)]
     retract: Strike | None = None
-    mass: Annotated[float, Field(gt=0.0, le=MAX_BAG_MASS_KG)] = 30.0
-    distance: Annotated[float, Field(gt=0.0, le=5.0)] = 0.5
-    height: Annotated[float, Field(gt=0.3, le=3.0)] = 1.35
-    radius: Annotated[float, Field(gt=0.02, le=1.0)] = 0.18
-    length: Annotated[float, Field(gt=0.0, le=3.0)] = 0.6
-    rope: Annotated[float, Field(gt=0.0, le=5.0)] = 0.9
-    links: Annotated[int, Field(ge=0, le=20)] = 0
+    mass: quantity(MIN_BAG_MASS_KG, MAX_BAG_MASS_KG, "kg") = 30.0
+    distance: quantity(0.05, 5.0, "m") = 0.5
+    height: quantity(0.3, 3.0, "m") = 1.35
+    radius: quantity(0.02, 1.0, "m") = 0.18
+    length: quantity(0.05, 3.0, "m") = 0.6
+    rope: quantity(0.05, 5.0, "m") = 0.9
+    links: count(0, 20, "links") = 0
 
     def punch_windows(self, clip: Any) -> list[tuple[float, float]]:
         """(start s, duration s) of every punch in clip time."""

@@ -6,9 +6,12 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from sim.tasks.base import Task, TaskConfig
+from sim.specbase import quantity
+from sim.tasks.base import MIN_MOTION_SECONDS, ClipTime, Task, TaskConfig
 
 MAX_FORCE_N = 5000.0
+#: Weakest push (N).
+MIN_FORCE_N = 1.0
 
 
 class PushConfig(TaskConfig):
@@ -19,11 +22,11 @@ class PushConfig(TaskConfig):
     """
 
     type: Literal["push"] = "push"
-    force: Annotated[float, Field(gt=0.0, le=MAX_FORCE_N)]
+    force: quantity(MIN_FORCE_N, MAX_FORCE_N, "N")
     direction: Literal["forward", "backward"] = "forward"
     body: Annotated[str, Field(min_length=1, max_length=100)] | None = None
-    start: Annotated[float, Field(ge=0.0)] | None = None
-    duration: Annotated[float, Field(gt=0.0, le=5.0)] | None = None
+    start: ClipTime | None = None
+    duration: quantity(MIN_MOTION_SECONDS, 5.0, "s") | None = None
 
     def window(self, clip: Any) -> tuple[float, float]:
         """(start, duration) of the push in seconds; defaults to the task window."""

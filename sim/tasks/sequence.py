@@ -6,8 +6,16 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from sim.specbase import StrictModel
-from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
+from sim.specbase import StrictModel, quantity
+from sim.tasks.base import (
+    MIN_MOTION_SECONDS,
+    ClipTime,
+    Pose,
+    Task,
+    TaskConfig,
+    check_pose,
+    pose_offsets,
+)
 from sim.trajectory import MotionDef
 
 MAX_MOTIONS = 32
@@ -21,9 +29,9 @@ class Motion(StrictModel):
     `cmrt` optionally names a result file whose CMRT is superposed for this motion.
     """
 
-    target: dict[str, float]
-    start: Annotated[float, Field(ge=0.0)]
-    duration: Annotated[float, Field(gt=0.0, le=10.0)]
+    target: Pose
+    start: ClipTime
+    duration: quantity(MIN_MOTION_SECONDS, 10.0, "s")
     cmrt: Annotated[str, Field(min_length=1, max_length=1000)] | None = None
 
 

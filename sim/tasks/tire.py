@@ -30,12 +30,22 @@ from typing import Annotated, Any
 from pydantic import Field
 
 from sim.props import PropDef
-from sim.specbase import StrictModel
-from sim.tasks.base import Task, TaskConfig, check_pose, pose_offsets
+from sim.specbase import StrictModel, quantity
+from sim.tasks.base import (
+    MIN_MOTION_SECONDS,
+    ClipTime,
+    Pose,
+    Task,
+    TaskConfig,
+    check_pose,
+    pose_offsets,
+)
 from sim.trajectory import MotionDef
 
 TIRE = "tire"
 MAX_TIRE_MASS_KG = 200.0
+#: Lightest tire (kg): ODE refuses a body of a few micrograms (dMassCheck aborts the process).
+MIN_TIRE_MASS_KG = 1.0
 MAX_MOTIONS = 8
 #: The penalty of a failed hit or dodge, in units of the fall penalty's unit.
 FAILED_TASK_PENALTY_UNITS = 1.0
@@ -47,11 +57,11 @@ class Tire(StrictModel):
     restitution^2 of its height), friction coefficient against the ground and the character.
     A 32 kg tire of 0.35 m outer radius is a small truck tyre."""
 
-    mass: Annotated[float, Field(gt=0.0, le=MAX_TIRE_MASS_KG)] = 32.0
-    radius: Annotated[float, Field(ge=0.1, le=0.8)] = 0.35
-    inner_radius: Annotated[float, Field(ge=0.0, le=0.7)] = 0.22
-    restitution: Annotated[float, Field(ge=0.0, le=1.0)] = 0.6
-    friction: Annotated[float, Field(gt=0.0, le=5.0)] = 0.8
+    mass: quantity(MIN_TIRE_MASS_KG, MAX_TIRE_MASS_KG, "kg") = 32.0
+    radius: quantity(0.1, 0.8, "m") = 0.35
+    inner_radius: quantity(0.01, 0.7, "m") = 0.22  # a disc of 0 inner radius is no tire
+    restitution: quantity(0.0, 1.0, "(coefficient)") = 0.6
+    friction: quantity(0.01, 5.0, "(coefficient)") = 0.8
 
 
 class Launch(StrictModel):
@@ -59,11 +69,11 @@ class Launch(StrictModel):
     `distance` m ahead of the support centre and `height` m up, velocity `toward` the character
     (m/s, horizontal) and `vertical` (m/s, up positive), spinning as if rolling if `rolling`."""
 
-    release: Annotated[float, Field(ge=0.0, le=20.0)] = 0.0
-    distance: Annotated[float, Field(gt=0.0, le=20.0)]
-    height: Annotated[float, Field(gt=0.0, le=10.0)]
-    toward: Annotated[float, Field(ge=-20.0, le=20.0)]
-    vertical: Annotated[float, Field(ge=-30.0, le=30.0)]
+    release: ClipTime = 0.0
+    distance: quantity(0.1, 20.0, "m")
+    height: quantity(0.01, 10.0, "m")
+    toward: quantity(-20.0, 20.0, "m/s")
+    vertical: quantity(-30.0, 30.0, "m/s")
     rolling: bool = True
 
 
@@ -71,9 +81,9 @@ class Motion(StrictModel):
     """A reference pose change: `target` (degrees relative to the standing pose) reached by a
     quintic ease over `duration` s from `start` s of the clip (defaults: the task window)."""
 
-    target: dict[str, float]
-    start: Annotated[float, Field(ge=0.0)] | None = None
-    duration: Annotated[float, Field(gt=0.0, le=10.0)] | None = None
+    target: Pose
+    start: ClipTime | None = None
+    duration: quantity(MIN_MOTION_SECONDS, 10.0, "s") | None = None
 
 
 class TireConfig(TaskConfig):

@@ -201,7 +201,8 @@ def test_bench_measures_each_task_world_with_its_props(capsys):
 
 
 @pytest.mark.parametrize("command", ["simulate", "optimize", "bench", "pca", "interpolate",
-                                     "serve", "worker", "submit", "jobs", "watch", "library"])
+                                     "serve", "worker", "submit", "jobs", "watch", "library",
+                                     "family"])
 def test_every_subcommand_has_help(command, capsys):
     with pytest.raises(SystemExit) as exit_:
         main([command, "--help"])

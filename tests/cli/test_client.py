@@ -178,7 +178,7 @@ def test_server_errors_are_typed_and_name_the_field(service):
         client.submit(bad)
     e = err.value
     assert e.status == 422 and e.field == "spec.clip.preparation"
-    assert "greater than or equal to 0" in e.rule and "preparation" in str(e)
+    assert "must be from 0 to 10 s, got -1.0" in e.rule and "preparation" in str(e)
     assert len(client.jobs(limit=200)) == before  # nothing stored on a 4xx
     with pytest.raises(InvalidRequestError, match="unknown task type 'juggle'"):
         client.submit({**bend("juggler"), "task": {"type": "juggle"}})
@@ -348,3 +348,38 @@ def test_token_from_the_settings(tmp_path):
         assert p.returncode == 0, p.stderr
     finally:
         _stop(proc)
+
+
+#: A cheap real family: the quiet stance along its decay (5 values, continuation from both).
+CALM = {"name": "calm", "family": "calm", "task": {"type": "quiet_stance"},
+        "clip": {"preparation": 0.3, "duration": 0.2, "decay": 0.4},
+        "optimize": {"popsize": 4, "max_evaluations": 4, "min_evaluations": 0, "window": 2}}
+
+
+def test_family_submit_show_watch_and_the_python_client(service, tmp_path):
+    _, service, _, _ = service
+    spec = tmp_path / "calm.yaml"
+    spec.write_text(yaml.safe_dump(CALM))
+    base = ["family", "submit", str(spec), "--param", "clip.decay",
+            "--values", "0.4", "0.5", "0.6", "0.7", "--strategy", "continuation",
+            "--leave-out", "0.5", "--k", "2", "--warm", "max_evaluations=4", "window=2"]
+    r = _cli(service, *base, "--json")
+    assert r.returncode == 0, r.stderr
+    fid = json.loads(r.stdout)["id"]
+    r = _cli(service, "family", "watch", fid, timeout=300)
+    assert r.returncode == 0, r.stderr + r.stdout
+    assert f"family {fid} done" in r.stdout and "| decay |" in r.stdout
+    shown = json.loads(_cli(service, "family", "show", fid, "--json").stdout)
+    assert [m["value"] for m in shown["members"]] == [0.4, 0.5, 0.6, 0.7]
+    assert [row["value"] for row in shown["checks"]["rows"]] == [0.5]
+    with Client(service) as c:
+        fam = c.family(fid)
+        assert fam.status() == "done" and fam.id in [f.id for f in c.families()]
+        assert all(len(run["curve"]) >= 1 for run in fam.refresh(curves=True)["runs"])
+    # bad input: exit 2 naming the field, nothing stored
+    before = len(Client(service).families())
+    i = base.index("--leave-out")
+    bad = _cli(service, *base[:i + 1], "0.55", *base[i + 2:])
+    assert bad.returncode == 2 and "leave_out[0]" in bad.stderr, bad.stderr
+    assert _cli(service, "family", "show", "nope").returncode == 2
+    assert len(Client(service).families()) == before

@@ -140,6 +140,11 @@ COVERED = {
     ".venv/bin/cmrt pca": "test_cli_block",
     ".venv/bin/cmrt interpolate": "test_cli_block",
     ".venv/bin/cmrt bench": "test_cli_block",
+    ".venv/bin/cmrt family run": "test_family_command",
+    ".venv/bin/cmrt family submit": "test_client_commands",
+    ".venv/bin/cmrt driver": "tests/cli/test_driver_process.py",
+    ".venv/bin/cmrt family show": "test_client_commands",
+    ".venv/bin/cmrt family watch": "test_client_commands",
     ".venv/bin/cmrt serve": "test_cmrt_serve_embedded",
     ".venv/bin/cmrt worker": "test_cmrt_worker",
     ".venv/bin/python bench/": "test_bench_scripts_help",
@@ -200,6 +205,23 @@ def test_cli_block(scratch):
     for replay in ("flat.html", "fast_bend.html"):  # self-contained replay files, < 1 MB
         html = (d / replay).read_text()
         assert 'id="replay-data"' in html and len(html.encode()) < 1_000_000
+
+
+def test_family_command(scratch):
+    """`cmrt family run` in every form shown, on the scratch fast bend's tiny budget; a form
+    without --resume starts afresh (its output's run folder removed first)."""
+    d = scratch
+    lines = [_strip_comment(c) for c in readme_commands()
+             if c.startswith(".venv/bin/cmrt family run")]
+    assert lines
+    for line in lines:
+        for form in _expand_optional(line):
+            out = d / re.search(r"--out (\S+)", form).group(1)
+            if "--resume" not in form:
+                shutil.rmtree(out.with_suffix(".runs"), ignore_errors=True)
+            p = _run(form, d)
+            doc = json.loads(out.read_text())
+            assert doc["checks"]["rows"] and "median speed-up" in p.stdout
 
 
 def test_bench_scripts_help(scratch):
@@ -313,8 +335,11 @@ def test_client_commands(scratch, tmp_path):
     lines = [_strip_comment(c) for c in readme_commands()
              if c.split()[:2] in (
                  [".venv/bin/cmrt", "submit"], [".venv/bin/cmrt", "jobs"],
-                 [".venv/bin/cmrt", "watch"], [".venv/bin/cmrt", "library"])]
-    assert [c.split()[1] for c in lines] == ["submit", "jobs", "watch", "library", "library"]
+                 [".venv/bin/cmrt", "watch"], [".venv/bin/cmrt", "library"])
+             or c.split()[:3] in ([".venv/bin/cmrt", "family", w]
+                                  for w in ("submit", "show", "watch"))]
+    assert [c.split()[1] for c in lines] == ["submit", "jobs", "watch", "library", "library",
+                                             "family", "family", "family"]
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
     env = _env(CMRT_API_PORT=str(port), CMRT_DATA_DIR=str(tmp_path / "data"), CMRT_WORKERS="1")
@@ -326,15 +351,19 @@ def test_client_commands(scratch, tmp_path):
             p = _run(f".venv/bin/cmrt submit bend_{t}.yaml --wait", scratch, cli_env)
             assert "library CMRT " in p.stdout
         out: dict[str, str] = {}
-        job = None
+        job = family = None
         for line in lines:
             for form in _expand_optional(line):
                 if job is not None:
                     form = form.replace(" JOB", f" {job}")
+                if family is not None:
+                    form = form.replace(" FAMILY", f" {family}")
                 p = _run(form.replace("--url URL", f"--url {url}"), scratch, cli_env)
                 out[form] = p.stdout
                 if job is None and form.split()[1] == "submit":
                     job = re.match(r"job (\S+) ", p.stdout).group(1)
+                if family is None and form.split()[1:3] == ["family", "submit"]:
+                    family = re.match(r"family (\S+) ", p.stdout).group(1)
         waited = next(v for k, v in out.items() if k.endswith("--wait"))
         assert re.search(r"^gen +\d+  evals", waited, re.M) and "library CMRT " in waited
         watched = next(v for k, v in out.items() if k.split()[1] == "watch")
@@ -345,6 +374,12 @@ def test_client_commands(scratch, tmp_path):
         lo, hi = sorted(n["task_parameters"]["duration"]
                         for n in json.loads(interp)["neighbours"])
         assert lo < 0.5 < hi  # 0.4 (fast_bend) or 0.3, and 0.7
+        grown = next(v for k, v in out.items() if k.split()[1:3] == ["family", "submit"])
+        assert f"family {family} done" in grown and "| duration |" in grown
+        shown = json.loads(next(v for k, v in out.items() if k.endswith(f"{family} --json")))
+        assert [m["value"] for m in shown["members"]] == [0.3, 0.4, 0.5, 0.6]
+        assert f"family {family} done" in next(
+            v for k, v in out.items() if k.split()[1:3] == ["family", "watch"])
     finally:
         rc = _stop(proc)
     assert rc == 0, (tmp_path / "serve.log").read_text()[-3000:]

@@ -14,6 +14,7 @@ import os
 import re
 import stat
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -334,6 +335,12 @@ def test_stale_worker_hosts_of_dead_runs_are_swept():
     subprocess.run(["ip", "netns", "add", stale], check=True)
     sleeper = subprocess.Popen(["ip", "netns", "exec", stale, "sleep", "60"])
     try:
+        # `ip netns exec` enters the namespace after it starts: sweep once the sleeper is in it
+        deadline = time.monotonic() + 30
+        while not subprocess.run(["ip", "netns", "pids", stale], capture_output=True,
+                                 text=True).stdout.strip():
+            assert time.monotonic() < deadline, "the sleeper never entered its namespace"
+            time.sleep(0.05)
         removed = sweep_stale_netns()
         assert stale in removed and live.name not in removed
         assert sleeper.wait(timeout=10) != 0  # killed with its namespace

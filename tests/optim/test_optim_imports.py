@@ -20,6 +20,8 @@ MODULES = (
     "optim.errors",
     "optim.synthetic",
     "optim.outcome",
+    "optim.family",
+    "optim.family_run",
 )
 
 

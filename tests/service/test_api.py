@@ -36,6 +36,8 @@ def test_job_lifecycle_library_and_interpolation(client):
                                         "tolerance": 0.1}).json()
     assert [c["id"] for c in near["items"]] == [jb["cmrt_id"]]
     assert client.get("/cmrts", params={"family": "bend", "duration": 0.45}).json()["total"] == 0
+    fams = client.get("/cmrts/families").json()
+    assert fams == {"items": [{"family": "bend", "count": 2}], "total": 1}
     one = client.get(f"/cmrts/{ja['cmrt_id']}").json()
     assert one["task_parameters"] == {"duration": 0.3} and one["source"]["job_id"] == a
     assert len(one["curve"]["t"]) == len(one["curve"]["dx"]) > 10
@@ -129,8 +131,8 @@ def test_health_openapi_dashboard(client):
     assert h.status_code == 200 and h.json()["database"] == "ok"
     paths = client.get("/openapi.json").json()["paths"]
     for p in ("/jobs", "/jobs/{job_id}", "/jobs/{job_id}/generations", "/jobs/{job_id}/cancel",
-              "/cmrts", "/cmrts/{cmrt_id}", "/cmrts/interpolate", "/bases", "/bases/{basis_id}",
-              "/health"):
+              "/cmrts", "/cmrts/{cmrt_id}", "/cmrts/interpolate", "/cmrts/families", "/bases",
+              "/bases/{basis_id}", "/health"):
         assert p in paths
     pages = {"/dashboard": "jobs.js", "/dashboard/jobs/x": "job.js",
              "/dashboard/library": "library.js"}
@@ -162,3 +164,29 @@ def test_budget_is_shown_and_a_job_above_the_ceiling_is_refused(client, repo):
     assert r.json()["detail"].startswith("optimize.max_evaluations: the job may simulate up to "
                                          "2,001,220 s")
     assert repo.list_jobs()[1] == before  # nothing stored
+
+
+def test_a_job_near_library_members_starts_warm_unless_cold(client):
+    """The library pays back: a job between two library CMRTs starts from their interpolation
+    (with a small step), one at a stored value from that CMRT; `start: cold` from the flat
+    spline; every job says where it started."""
+    for name, t in (("lib_a", 0.3), ("lib_b", 0.5)):
+        wait_job(client, _submit(client, bend_spec(name, t), start="cold"))
+    warm = wait_job(client, _submit(client, bend_spec("mid", 0.4)))
+    assert warm["start"]["from"].startswith("library: interpolated along duration between "
+                                            "0.3 and 0.5 (weight 0.500)"), warm["start"]
+    assert warm["start"]["sigma0"] == 0.05 and len(warm["start"]["x0"]) == 8
+    assert len(warm["start"]["cmrts"]) == 2
+    exact = wait_job(client, _submit(client, bend_spec("again", 0.3)))
+    assert exact["start"]["from"].startswith("library CMRT ")
+    cold = wait_job(client, _submit(client, bend_spec("cold", 0.4), start="cold"))
+    assert cold["start"] is None
+    outside = wait_job(client, _submit(client, bend_spec("far", 0.7)))
+    assert outside["start"] is None  # no neighbours on both sides: the flat spline
+    other_clip = {**bend_spec("longer", 0.4), "clip": {"preparation": 0.5, "duration": 0.4,
+                                                        "decay": 0.2}}
+    assert wait_job(client, _submit(client, other_clip))["start"] is None  # not its neighbours
+    r = client.post("/jobs", json={"spec": bend_spec("x", 0.4), "start": "warm"})
+    assert r.status_code == 422 and r.json()["detail"].startswith("start:")
+    r = client.post("/jobs", params={"start": "hot"}, json=bend_spec("x", 0.4))
+    assert r.status_code == 422 and "start" in r.json()["detail"]

@@ -182,3 +182,26 @@ def test_take_over_after_a_lease_expiry_is_logged_at_info(repo, config, local_ex
                                                  "host:1:dead whose lease expired")
     assert ("resuming at generation 0: 1 of its 4 candidates already evaluated, 1 started and "
             "not finished, run again: [2]") in msgs[0]
+
+
+def test_job_result_equals_the_command_lines_search_from_the_same_start(repo, config,
+                                                                        local_executor):
+    """A job started at x0 keeps where it started, and its result document is what
+    `optim.run.optimize` gives for the same spec, seed and start (wall time aside)."""
+    from optim.run import optimize
+    from optim.spline import flat_params
+
+    spec = parse_spec(bend_spec())
+    x0 = [min(1.0, v + 0.05) for v in flat_params(spec)]
+    start = {"from": "a test", "x0": x0}
+    job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
+                          family=spec.family_name, task=spec.task_type, seed=3, start=start)
+    assert JobDriver(repo, job.id, local_executor, config).run() == STOPPED
+    assert repo.get_job(job.id).start == start
+    got = repo.job_result(job.id)
+    want = optimize(spec, SerialExecutor(), seed=3, x0=x0, objective=Sphere(centre=0.3),
+                    cut=False).to_dict()
+    for key in ("params", "objective", "baseline_objective", "evaluations", "iterations",
+                "stop_rule", "history", "knot_times", "values"):
+        assert got[key] == want[key], key
+    assert len(got["history"]) == 3 and got["objective"] < got["baseline_objective"]

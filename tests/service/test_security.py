@@ -116,6 +116,79 @@ def test_cross_site_state_change_is_refused(open_client):
                             headers={"sec-fetch-site": "same-origin"}).status_code == 202
 
 
+@pytest.mark.parametrize("headers", [
+    {"sec-fetch-site": "same-site", "origin": "http://127.0.0.1:9999"},
+    {"origin": "http://127.0.0.1:9999"},  # a browser without Sec-Fetch-* headers
+    {"origin": "http://testserver:8001"},  # the same host, another port
+    {"origin": "https://testserver"},  # another scheme
+    {"origin": "null"},  # a sandboxed frame, a file: page
+    {"sec-fetch-site": "same-site"},
+])
+def test_another_origin_cannot_change_state(open_client, headers):
+    job = open_client.post("/jobs", json=bend_spec()).json()["id"]
+    r = open_client.post(f"/jobs/{job}/cancel", headers={**headers, "content-type": "text/plain"},
+                         content=b"x")
+    assert r.status_code == 403, r.text
+    assert r.json()["detail"].startswith("origin: requests that change state from another "
+                                         "origin are refused ("), r.text
+    assert open_client.get(f"/jobs/{job}").json()["cancel_requested"] is False
+    r = open_client.post("/jobs", json=bend_spec("other"), headers=headers)
+    assert r.status_code == 403 and open_client.get("/jobs").json()["total"] == 1
+    # Reads are not state changes: a page may link to them.
+    assert open_client.get(f"/jobs/{job}", headers=headers).status_code == 200
+
+
+def test_the_own_origin_changes_state(settings, config, repo, local_executor, open_client):
+    job = open_client.post("/jobs", json=bend_spec(),
+                           headers={"origin": "http://testserver",
+                                    "sec-fetch-site": "same-origin"}).json()["id"]
+    assert open_client.post(f"/jobs/{job}/cancel",
+                            headers={"origin": "http://testserver"}).status_code == 202
+    # Behind a proxy the public URL's origin is the service's own, whatever the Host says.
+    with _client(settings, repo, local_executor, config,
+                 public_url="https://cmrt.example/api") as c:
+        assert c.post("/jobs", json=bend_spec("b"), headers={
+            "origin": "https://cmrt.example", "host": "10.0.0.5:8000"}).status_code == 202
+        assert c.post("/jobs", json=bend_spec("c"), headers={
+            "origin": "https://evil.example", "host": "10.0.0.5:8000"}).status_code == 403
+
+
+def test_head_is_served_wherever_get_is(closed_client, repo):
+    c = closed_client
+    for path in ("/health", "/", "/openapi.json", "/docs", "/dashboard", "/jobs", "/cmrts"):
+        get = c.get(path, headers=_auth())
+        head = c.head(path, headers=_auth())
+        assert head.status_code == get.status_code == 200, (path, head.status_code)
+        assert head.content == b"" and head.headers["content-type"] == get.headers[
+            "content-type"], path
+        assert head.headers["content-length"] == get.headers["content-length"], path
+    assert c.head("/jobs").status_code == 401  # the token is needed as on GET
+    r = c.head("/jobs/nosuchjob", headers=_auth())
+    assert r.status_code == 404 and r.content == b""
+    assert "HEAD" in c.options("/jobs/x").headers["allow"]
+    assert c.head("/links", headers=_auth()).status_code == 405  # no GET there
+
+
+def test_bidirectional_controls_are_refused(open_client):
+    for field, value in (("family", "bend\u202e"), ("family", "\u2066x\u2069"),
+                         ("name", "a\u200fb")):
+        r = open_client.post("/jobs", json={**bend_spec(), field: value})
+        assert r.status_code == 422, r.text
+        assert r.json()["detail"].startswith(f"spec: {field}: "), r.text
+    r = open_client.post("/jobs", json={**bend_spec(), "family": "bend\u202e"})
+    assert "control character '\\u202e' not allowed" in r.json()["detail"]
+    assert open_client.get("/jobs").json()["total"] == 0
+
+
+def test_a_404_quotes_the_id_it_echoes(open_client):
+    for raw, shown in (("%FF%FE", "'\\ufffd\\ufffd'"), ("caf%C3%A9", "'caf\\xe9'"),
+                       ("abc", "'abc'")):
+        r = open_client.get(f"/jobs/{raw}")
+        assert r.status_code == 404 and r.json()["detail"] == f"job {shown} not found", r.text
+        assert r.text.isascii()
+    assert open_client.get("/cmrts/%FF").json()["detail"] == "CMRT '\\ufffd' not found"
+
+
 def test_no_host_header_reflection(open_client):
     evil = {"host": "evil.example:666"}
     r = open_client.post("/jobs", json=bend_spec(), headers=evil)

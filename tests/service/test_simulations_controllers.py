@@ -26,9 +26,9 @@ def test_pd_clip_is_the_direct_rollout(client, controller):
 @pytest.mark.parametrize(("controller", "needle"), [
     ({"type": "pd"}, "spec.controller: must be a mapping whose `type` (default momentum) is "
                      "one of momentum, pd_parent, pd_world"),
-    ({"type": "pd_world", "k2": -1.0}, "spec.controller.k2: Input should be greater"),
+    ({"type": "pd_world", "k2": -1.0}, "spec.controller.k2: must be from 0.001 to 1000"),
     ({"type": "momentum", "stepping": True, "response_delay": -1},
-     "spec.controller.response_delay: Input should be greater than or equal to 0"),
+     "spec.controller.response_delay: must be from 0 to 1 s, got -1"),
 ])
 def test_bad_controller_block_is_422(client, controller, needle):
     r = client.post("/simulations", json={"spec": {**QUIET, "controller": controller}})

@@ -38,7 +38,7 @@ def test_example_and_its_parameters():
     ({"hold": {"wrist": 10.0}}, "task.hold", "unknown joint 'wrist'"),
     ({"throw": {"flight": 1.5}}, "task.throw.flight", "released before the clip starts"),
     ({"throw": {"arrival": 4.0}}, "task.throw.arrival", "after the end of the clip"),
-    ({"ball": {"mass": 0.0}}, "task.ball.mass", "greater than 0"),
+    ({"ball": {"mass": 0.0}}, "task.ball.mass", "must be from 0.05 to 50 kg, got 0.0"),
     ({"ball": {"mass": "7"}}, "task.ball.mass", "valid number"),
     ({"ball": {"weight": 7.0}}, "task.ball.weight", "Extra inputs"),
 ])

@@ -27,10 +27,11 @@ def _data(**task) -> dict:
 
 
 @pytest.mark.parametrize(("task", "message"), [
-    ({"mass": -1.0}, r"task\.mass: Input should be greater than 0"),
+    ({"mass": -1.0}, r"task\.mass: must be from 1 to 1000 kg, got -1\.0"),
     ({"width": 2.0, "height": 1.0}, r"task: .*width must be below height"),
     ({"ready": {"wrist": 10.0}}, r"task\.ready: unknown joint 'wrist'"),
-    ({"push": {"shoulder_r": 200.0}}, r"task\.push: joint 'shoulder_r': 200\.0 degrees"),
+    ({"push": {"shoulder_r": 200.0}},
+     r"task\.push\.shoulder_r: must be from -180 to 180 degrees, got 200\.0"),
     ({"ready_time": 1.5}, r"task\.ready_time: 1\.5 s ends after the preparation"),
     ({"colour": "red"}, r"task\.colour: Extra inputs are not permitted"),
 ])

@@ -60,7 +60,8 @@ def test_each_type_parses_and_round_trips():
 @pytest.mark.parametrize(("name", "block", "changes", "field", "rule"), [
     ("slow_bend", {"type": "pd_wrld"}, {}, "controller.type",
      "controller types are momentum, pd_parent, pd_world"),
-    ("slow_bend", {"type": "pd_world", "k1": 0.0}, {}, "controller.k1", "greater than 0"),
+    ("slow_bend", {"type": "pd_world", "k1": 0.0}, {}, "controller.k1",
+     "must be from 0.001 to 10000 s^-2 per kg m^2"),
     ("slow_bend", {"type": "pd_world", "root": "pelvis"}, {}, "controller.root", "absolute"),
     ("slow_bend", {"type": "pd_world", "delta": 0.0}, {}, "controller.delta", "0.001"),
     ("slow_bend", {"type": "pd_parent", "delta": 0.01}, {}, "controller.delta", "Extra"),

@@ -39,15 +39,15 @@ def test_registered_with_its_library_keys():
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"mass": -1.0}, r"task.mass: Input should be greater than 0"),
+    ({"mass": -1.0}, r"task.mass: must be from 1 to 500 kg, got -1.0"),
     ({"mass": "30"}, r"task.mass: Input should be a valid number"),
-    ({"distance": 0.0}, r"task.distance: Input should be greater than 0"),
+    ({"distance": 0.0}, r"task.distance: must be from 0.05 to 5 m, got 0.0"),
     ({"links": 1.5}, r"task.links: Input should be a valid integer"),
     ({"punches": []}, r"task.punches: List should have at least 1 item"),
     ({"punches": [{"target": {"wrist_r": 10.0}}]},
      r"task.punches.0.target: unknown joint 'wrist_r'"),
     ({"punches": [{"target": {"elbow_r": 200.0}}]},
-     r"task.punches.0.target: joint 'elbow_r': 200.0 degrees is outside"),
+     r"task.punches.0.target.elbow_r: must be from -180 to 180 degrees, got 200.0"),
     ({"retract": {"target": {"elbow_r": 0.0}, "duration": 2.0}},
      r"task.retract: the motion ends after the clip \(3.3 s > 1.8 s\)"),
     ({"guard": [{"target": {"elbow_r": 10.0}, "start": 0.0}]},

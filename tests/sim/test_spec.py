@@ -55,22 +55,22 @@ def _unknown_joint(d):
 
 def _joint_out_of_range(d):
     d["task"]["target"]["waist"] = -200.0
-    return "slow_bend", "task.target", "outside [-180, 180]"
+    return "slow_bend", "task.target.waist", "must be from -180 to 180 degrees, got -200.0"
 
 
 def _negative_duration(d):
     d["clip"]["duration"] = -0.5
-    return "slow_bend", "clip.duration", "greater than or equal to 0.001"
+    return "slow_bend", "clip.duration", "must be from 0.001 to 10 s, got -0.5"
 
 
 def _duration_under_one_step(d):
     d["clip"]["duration"] = 5e-324
-    return "slow_bend", "clip.duration", "greater than or equal to 0.001"
+    return "slow_bend", "clip.duration", "must be from 0.001 to 10 s, got 5e-324"
 
 
 def _negative_decay(d):
     d["clip"]["decay"] = -1.0
-    return "slow_bend", "clip.decay", "greater than or equal to 0"
+    return "slow_bend", "clip.decay", "must be from 0 to 10 s, got -1.0"
 
 
 def _clip_too_long(d):
@@ -111,7 +111,7 @@ def _push_duration_past_end(d):
 
 def _negative_force(d):
     d["task"]["force"] = -100.0
-    return "push", "task.force", "greater than 0"
+    return "push", "task.force", "must be from 1 to 5000 N, got -100.0"
 
 
 def _push_unknown_body(d):
@@ -155,7 +155,7 @@ def _float_knots(d):
 
 
 def _cop_box_too_wide(d):
-    d["controller"] = {"cop_box": 10000.0}
+    d["controller"] = {"cop_box": 0.5}
     return "push", "controller.cop_box", "below half the support length"
 
 
@@ -191,7 +191,7 @@ def _schedule_scale_and_set_same_gain(d):
 
 def _schedule_set_negative(d):
     d["schedule"] = [{"set": {"b_p": -1.0}}]
-    return "slow_bend", "schedule.0.set.b_p", "greater than or equal to 0"
+    return "slow_bend", "schedule.0.set.b_p", "must be from 0 to 10000 in the gain's unit"
 
 
 def _schedule_end_before_start(d):

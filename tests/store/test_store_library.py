@@ -138,6 +138,24 @@ def test_list_cmrts_and_families(repo: SqlRepository) -> None:
     assert total == 5 and len(page) == 1
     assert repo.list_cmrts()[1] == 6
     assert cmrt_families(repo) == {"bend": 1, "push": 5}
+    assert repo.cmrt_families() == [("bend", 1), ("push", 5)]
+
+
+def test_cmrt_keys(repo: SqlRepository) -> None:
+    a = add(repo, duration=0.3, force=10.0, objective=2.0)
+    b = repo.add_cmrt(CmrtEntry(**{**_minimal(), "family": "push", "spec": {"name": "s"},
+                                   "values": [[0.0, 0.1], [0.1, 0.0]], "knots": [0.2, 0.4]}))
+    add(repo, family="bend", duration=0.4)
+    keys = repo.cmrt_keys("push")
+    listed, _ = repo.list_cmrts("push")
+    assert [k.id for k in keys] == [r.id for r in listed]  # the same order, newest first
+    by_id = {k.id: k for k in keys}
+    assert by_id[a].task_parameters == {"duration": 0.3, "force": 10.0}
+    assert (by_id[a].objective, by_id[a].knots, by_id[a].vertical) == (2.0, 4, False)
+    assert not by_id[a].has_spec and by_id[b].has_spec
+    assert (by_id[b].knots, by_id[b].vertical) == (2, True)
+    assert by_id[a].created_at == repo.get_cmrt(a).created_at
+    assert repo.cmrt_keys("nobody") == []
 
 
 # ---- bases -------------------------------------------------------------------------------

@@ -1,5 +1,5 @@
-// /dashboard/library: the CMRT library by family and task parameter (GET /cmrts, paged),
-// each CMRT's curve (GET /cmrts/{id}), an interpolation preview (GET /cmrts/interpolate) and
+// /dashboard/library: the CMRT library by family and task parameter (GET /cmrts/families,
+// then one family's CMRTs with their curves: GET /cmrts?family=F&curves=true, paged), an interpolation preview (GET /cmrts/interpolate) and
 // the family's PCA bases (GET /bases?family=).
 "use strict";
 (() => {
@@ -8,13 +8,14 @@
   const params = new URLSearchParams(location.search);
   CMRT.header("library");
   document.getElementById("source").textContent =
-    "GET /cmrts, /cmrts?family=F&curves=true, /cmrts/interpolate?family=F&KEY=V, /bases?family=F";
-  let all = [], members = [], details = new Map(), keys = [], interpTimer = null;
+    "GET /cmrts/families, /cmrts?family=F&curves=true, /cmrts/interpolate?family=F&KEY=V, /bases?family=F";
+  let members = [], details = new Map(), keys = [], interpTimer = null;
 
-  async function loadAll() {
+  // One family at a time: the library may hold thousands of CMRTs in hundreds of families.
+  async function loadFamily(family) {
     const out = [];
     for (let offset = 0; ; offset += PAGE) {
-      const page = await getJson(api("/cmrts", {limit: PAGE, offset}));
+      const page = await getJson(api("/cmrts", {family, curves: true, limit: PAGE, offset}));
       out.push(...page.items);
       if (out.length >= page.total || !page.items.length) return out;
     }
@@ -160,7 +161,7 @@
         "no basis for this family yet (POST /bases {\"family\": ..., \"k\": 3} builds one)"));
       return;
     }
-    const byId = new Map(all.map(r => [r.id, r]));
+    const byId = new Map(members.map(r => [r.id, r]));
     for (const b of page.items) {
       let cum = 0;
       const rows = b.variance_explained.slice(0, Math.max(b.k, 1) + 2).map((v, i) => {
@@ -189,20 +190,14 @@
 
   // ---- family selection -------------------------------------------------------------------
   async function showFamily(family) {
-    members = all.filter(r => r.family === family);
+    members = await loadFamily(family);
+    for (const d of members) details.set(d.id, d);
     keys = [...new Set(members.flatMap(r => Object.keys(r.task_parameters)))].sort();
     const k0 = keys[0];
     members.sort((a, b) => (a.task_parameters[k0] ?? 0) - (b.task_parameters[k0] ?? 0));
     history.replaceState(null, "", api("/dashboard/library",
                                        {family, cmrt: params.get("cmrt") || ""}));
     table();
-    if (members.some(r => !details.has(r.id))) {  // the family's curves, a page per request
-      for (let offset = 0; ; offset += PAGE) {
-        const page = await getJson(api("/cmrts", {family, curves: true, limit: PAGE, offset}));
-        for (const d of page.items) details.set(d.id, d);
-        if (offset + PAGE >= page.total || !page.items.length) break;
-      }
-    }
     overlay();
     interpForm();
     await preview();
@@ -212,9 +207,10 @@
 
   async function main() {
     try {
-      all = await loadAll();
-      const fams = [...new Set(all.map(r => r.family))].sort();
-      setText("lib-count", `${all.length} CMRTs in ${fams.length} families`);
+      const lib = (await getJson(api("/cmrts/families", {}))).items;
+      const fams = lib.map(f => f.family);
+      const count = lib.reduce((n, f) => n + f.count, 0);
+      setText("lib-count", `${count} CMRTs in ${fams.length} families`);
       const sel = document.getElementById("family");
       for (const f of fams) sel.appendChild(el("option", {value: f}, f));
       if (!fams.length) {

@@ -1,0 +1,232 @@
+"""The CMRT library at scale: query latency with 10,000 CMRTs in 200 families.
+
+    .venv/bin/python bench/library_scale.py [--backend sqlite postgresql] [--families 200]
+        [--per-family 50] [--requests 400] [--pages 3] [--json]
+
+For each backend, a fresh database is filled through the store (`Repository.add_cmrt`, one
+entry per call as the job driver adds them): `--families` families of `--per-family` domino
+CMRTs each along the wall's mass (the CMRT parameters, knots, values and curve of a spec-valid
+spline; objectives made up, since only the reads are measured). Then `cmrt serve` runs on it
+(loopback, drivers idle) and a client on this machine asks, one request at a time, over random
+families and masses:
+  * `GET /cmrts?family=F&mass=M&tolerance=T` (nearest members within +-T kg),
+  * `GET /cmrts/interpolate?family=F&mass=M` (the interpolated CMRT between the two nearest),
+  * `GET /cmrts/families` (the library's families and their sizes, the library page's list),
+  * `GET /health` (a database ping: the floor the HTTP stack and the client set),
+and reports each one's p50 / p99 / max in ms; then the library page
+(`/dashboard/library?family=F`) in Debian's Chromium, `--pages` loads: ms from navigation
+start until the page says it has drawn (table, overlay, interpolation and bases shown).
+PostgreSQL: the machine's server (CMRT_BENCH_PG, default postgresql+psycopg://postgres@
+127.0.0.1:5432/test), with a database of its own made and dropped by the script.
+No assertions: figures go to docs/benchmarks.md with the machine's load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import sqlalchemy as sa
+import yaml
+
+from optim.spline import decode, sample_curve
+from sim.spec import parse_spec
+from store import CmrtEntry, open_repository
+
+ROOT = Path(__file__).resolve().parents[1]
+CMRT = ROOT / ".venv" / "bin" / "cmrt"
+PG_ADMIN = os.environ.get("CMRT_BENCH_PG", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
+#: The wall masses of a family span 30-150 kg, as the paper's domino family does.
+MASS_LO, MASS_HI = 30.0, 150.0
+#: The query's tolerance, kg: about one member spacing either side.
+TOLERANCE = 5.0
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _entries(families: int, per_family: int, seed: int) -> list[CmrtEntry]:
+    base = yaml.safe_load((ROOT / "examples" / "domino.yaml").read_text())
+    rng = np.random.default_rng(seed)
+    out = []
+    masses = np.linspace(MASS_LO, MASS_HI, per_family)
+    for f in range(families):
+        family = f"domino_{f:03d}"
+        for m in masses:
+            doc = {**base, "family": family, "task": {**base["task"], "mass": float(m)}}
+            spec = parse_spec(doc)
+            params = rng.uniform(0.2, 0.8, spec.cmrt_dimension)
+            spline = decode(spec, params)
+            out.append(CmrtEntry(
+                family=family, character=spec.character.model_dump(mode="json"),
+                task_parameters=spec.task_parameters(), preparation=spec.clip.preparation,
+                duration=spec.clip.duration, decay=spec.clip.decay,
+                params=[float(v) for v in params],
+                knots=[float(v) for v in spline.knot_times],
+                values=[float(v) for v in spline.values], curve=sample_curve(spline),
+                objective=float(rng.uniform(1, 3)), objective_without=float(rng.uniform(3, 4)),
+                fell=False, fell_without=False, spec=spec.model_dump(mode="json"),
+            ))  # fmt: skip
+    return out
+
+
+def _fill(url: str, entries: list[CmrtEntry]) -> float:
+    repo = open_repository(url)
+    t0 = time.perf_counter()
+    for e in entries:
+        repo.add_cmrt(e)
+    repo.engine.dispose()
+    return time.perf_counter() - t0
+
+
+def _stats(ms: list[float]) -> dict[str, float]:
+    a = np.asarray(ms)
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": float(a.max()), "n": len(ms)}
+
+
+def _serve(url: str, data: Path) -> tuple[subprocess.Popen, str]:
+    port = _port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
+    env.update(CMRT_DATA_DIR=str(data), CMRT_DATABASE_URL=url, CMRT_WORKERS="1",
+               CMRT_LOG_LEVEL="WARNING")
+    with open(data / "serve.log", "w") as log:  # the child keeps its own descriptor
+        proc = subprocess.Popen(
+            [str(CMRT), "serve", "--host", "127.0.0.1", "--port", str(port)], env=env,
+            stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(base + "/health", timeout=2).status_code == 200:
+                return proc, base
+        except httpx.HTTPError:
+            time.sleep(0.2)
+    raise RuntimeError(f"cmrt serve did not start; see {data / 'serve.log'}")
+
+
+def _requests(base: str, families: int, n: int, seed: int) -> dict[str, Any]:
+    rng = random.Random(seed)
+    out: dict[str, list[float]] = {"find": [], "interpolate": [], "families": [], "health": []}
+    with httpx.Client(base_url=base, timeout=30) as c:
+        for i in range(n + 20):  # the first 20 warm the server up and are not counted
+            fam = f"domino_{rng.randrange(families):03d}"
+            mass = round(rng.uniform(MASS_LO, MASS_HI), 2)
+            for name, path, q in (
+                ("find", "/cmrts", {"family": fam, "mass": mass, "tolerance": TOLERANCE}),
+                ("interpolate", "/cmrts/interpolate", {"family": fam, "mass": mass}),
+                ("families", "/cmrts/families", {}),
+                ("health", "/health", {}),  # the HTTP stack's floor, a database ping
+            ):
+                t0 = time.perf_counter()
+                r = c.get(path, params=q)
+                dt = (time.perf_counter() - t0) * 1000
+                if r.status_code != 200:
+                    raise RuntimeError(f"{path} {q}: {r.status_code} {r.text[:200]}")
+                if i >= 20:
+                    out[name].append(dt)
+    return {k: _stats(v) for k, v in out.items()}
+
+
+def _pages(base: str, families: int, loads: int) -> list[float]:
+    from playwright.sync_api import sync_playwright
+
+    drawn = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=["--no-sandbox"])
+        for i in range(loads + 1):
+            ctx = browser.new_context(viewport={"width": 1280, "height": 900})
+            page = ctx.new_page()
+            page.goto(f"{base}/dashboard/library?family=domino_{(7 * i) % families:03d}")
+            page.wait_for_selector("body[data-state='loaded']", timeout=120_000)
+            ms = page.evaluate("performance.now()")
+            if i:  # the first load warms the server's caches and Chromium's
+                drawn.append(float(ms))
+            ctx.close()
+        browser.close()
+    return drawn
+
+
+def _pg_url(name: str) -> str:
+    u = sa.engine.make_url(PG_ADMIN)
+    return u.set(database=name).render_as_string(hide_password=False)
+
+
+def run_backend(backend: str, args: argparse.Namespace, entries: list[CmrtEntry]) -> dict:
+    data = Path(tempfile.mkdtemp(prefix=f"cmrt-libscale-{backend}-"))
+    admin = None
+    name = f"cmrt_libscale_{os.getpid()}"
+    if backend == "sqlite":
+        url = f"sqlite:///{data}/cmrt.db"
+    else:
+        admin = sa.create_engine(PG_ADMIN, isolation_level="AUTOCOMMIT")
+        with admin.connect() as c:
+            c.execute(sa.text(f'drop database if exists "{name}"'))
+            c.execute(sa.text(f'create database "{name}"'))
+        url = _pg_url(name)
+    proc = None
+    try:
+        fill_s = _fill(url, entries)
+        proc, base = _serve(url, data)
+        lat = _requests(base, args.families, args.requests, args.seed)
+        pages = _pages(base, args.families, args.pages) if args.pages else []
+        return {"backend": backend, "cmrts": len(entries), "fill_seconds": fill_s,
+                "latency_ms": lat, "page_drawn_ms": pages}
+    finally:
+        if proc is not None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait(timeout=30)
+        if admin is not None:
+            with admin.connect() as c:
+                c.execute(sa.text(f'drop database if exists "{name}" with (force)'))
+            admin.dispose()
+        shutil.rmtree(data, ignore_errors=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--backend", nargs="+", default=["sqlite", "postgresql"],
+                    choices=["sqlite", "postgresql"])
+    ap.add_argument("--families", type=int, default=200)
+    ap.add_argument("--per-family", type=int, default=50)
+    ap.add_argument("--requests", type=int, default=400)
+    ap.add_argument("--pages", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    entries = _entries(args.families, args.per_family, args.seed)
+    results = [run_backend(b, args, entries) for b in args.backend]
+    with open("/proc/loadavg") as f:
+        load = " ".join(f.read().split()[:3])
+    if args.json:
+        print(json.dumps({"load": load, "results": results}, indent=1))
+        return
+    print(f"{len(entries)} CMRTs in {args.families} families; load average {load}")
+    print("| backend | fill (s) | request | p50 ms | p99 ms | max ms |")
+    print("|---|---|---|---|---|---|")
+    for r in results:
+        for name, s in r["latency_ms"].items():
+            print(f"| {r['backend']} | {r['fill_seconds']:.0f} | {name} | {s['p50']:.1f} | "
+                  f"{s['p99']:.1f} | {s['max']:.1f} |")
+        if r["page_drawn_ms"]:
+            ms = ", ".join(f"{v:.0f}" for v in r["page_drawn_ms"])
+            print(f"| {r['backend']} | | library page drawn (ms) | {ms} | | |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,146 @@
+"""`/families`: grow the library along one task parameter in one request (optim.family): the
+members, warm-started from each other, then the PCA basis and its checks (Table 2)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import JSONResponse
+
+from optim.family import PROBES, FamilyError, parse_family, plan_runs
+from service import paper, schemas
+from service.body import read_json
+from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
+from service.errors import ApiError
+from service.openapi import error_responses, json_body
+from store.records import FAMILY_STATUSES
+from worker import admission
+
+router = APIRouter(prefix="/families", tags=["families"])
+
+
+def _progress(fam: Any, runs: list[Any], jobs: dict[str, Any], probes_done: bool
+              ) -> dict[str, int]:
+    done = sum(1 for r in runs if r.id in jobs and jobs[r.id].terminal)
+    done += 1 if probes_done else 0
+    running = sum(1 for j in jobs.values() if j.status == "running")
+    return {"runs": len(runs), "done": done, "running": running,
+            "queued": sum(1 for j in jobs.values() if j.status == "queued"),
+            "not_started": sum(1 for r in runs if r.id not in jobs and r.kind != PROBES)}
+
+
+def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
+               curves: bool = False) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "id": fam.id,
+        "url": url_for(request, "get_family", family_id=fam.id),
+        "family": fam.family,
+        "param": fam.param,
+        "status": fam.status,
+        "error": fam.error,
+        "cancel_requested": fam.cancel_requested,
+        "created_at": fam.created_at,
+        "finished_at": fam.finished_at,
+        "values": fam.spec.get("values"),
+        "strategy": fam.spec.get("strategy"),
+        "links": {"cancel": url_for(request, "cancel_family", family_id=fam.id),
+                  "dashboard": url_for(request, "dashboard_family", family_id=fam.id)},
+    }
+    if not full:
+        return out
+    fs = parse_family(fam.spec)
+    runs = plan_runs(fs)
+    jobs = repo.family_jobs(fam.id) if fam.runs else {}
+    report = repo.family_report(fam.id) if fam.status == "done" else None
+    rows = []
+    for r in runs:
+        if r.kind == PROBES:
+            continue
+        j = jobs.get(r.id)
+        row: dict[str, Any] = {
+            "id": r.id, "kind": r.kind, "value": r.value, "warm_from": r.warm_from,
+            "needs": list(r.needs), "job_id": None if j is None else j.id,
+            "job_url": None if j is None else url_for(request, "get_job", job_id=j.id),
+            "status": "not started" if j is None else j.status,
+            "best_objective": None if j is None else j.best_objective,
+            "evaluations": 0 if j is None else j.evaluations,
+            "start": None if j is None or not j.start else j.start.get("from"),
+        }
+        if curves and j is not None:
+            row["curve"] = [[g.evaluations, g.best_so_far] for g in repo.generations(j.id)]
+        rows.append(row)
+    out.update(
+        spec=fam.spec, runs=rows,
+        progress=_progress(fam, runs, jobs, repo.family_probes(fam.id) is not None),
+        members=None if report is None else report["members"],
+        basis=None if report is None else report["basis"],
+        checks=None if report is None else report["checks"],
+        paper_table2=paper.table2(fs.base.task_type, fs.param),
+    )
+    return out
+
+
+@router.post("", status_code=202, summary="Grow a family of CMRTs along a task parameter",
+             openapi_extra=json_body(schemas.FamilySpec, example=schemas.FAMILY_EXAMPLE),
+             responses=error_responses(400, 413, 415, 422))
+async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
+    """Body: a family request (docs/families.md): the base task `spec`, the `param` path of
+    one number in it, its `values`, the `strategy` (`independent` | `continuation` `from`
+    low | high | both | middle, `warm` rules), `leave_out` values, `k`, `seed`. Every run is
+    an ordinary job (listed under /jobs); the whole family is admitted against the job
+    budget ceiling. 202 with the family's URL in `Location`."""
+    data = await read_json(request, svc.settings.max_body_bytes)
+    try:
+        fs = parse_family(data)
+    except FamilyError as err:
+        raise ApiError(422, str(err)) from None
+    try:
+        budget = admission.family_budget(fs, svc.settings)
+    except admission.BudgetExceeded as err:
+        raise ApiError(422, str(err)) from None
+    fam = svc.repo.create_family(fs.to_dict(), family=fs.family, param=fs.param)
+    url = url_for(request, "get_family", family_id=fam.id)
+    return JSONResponse({"id": fam.id, "url": url, "status": fam.status,
+                         "runs": len(plan_runs(fs)), "budget": budget.to_dict()},
+                        status_code=202, headers={"Location": url})
+
+
+@router.get("", summary="List families", responses=error_responses(422))
+def list_families(
+    request: Request,
+    repo: RepoDep,
+    status: Annotated[str | None, Query(pattern="^(" + "|".join(FAMILY_STATUSES) + ")$")] = None,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
+) -> dict[str, Any]:
+    items, total = repo.list_families(status=status, limit=limit, offset=offset)
+    return {"items": [family_out(f, request, repo) for f in items], "total": total,
+            "limit": limit, "offset": offset}
+
+
+@router.get("/{family_id}", summary="One family: runs, progress, members, basis, checks",
+            responses=error_responses(404))
+def get_family(
+    family_id: str,
+    request: Request,
+    repo: RepoDep,
+    curves: Annotated[bool, Query(description="each run's [evaluations, best so far]")] = False,
+) -> dict[str, Any]:
+    """Status and progress; every run of the plan with its job; once done, the members
+    (objective, fell, task success, CMRT), the PCA basis and the checks (members'
+    reconstruction errors and strategy switches, interpolation probes, Table 2 rows), and the
+    paper's Table 2 where the task has one."""
+    return family_out(repo.get_family(family_id), request, repo, full=True, curves=curves)
+
+
+@router.post("/{family_id}/cancel", status_code=202, summary="Cancel a family",
+             responses=error_responses(404))
+def cancel_family(family_id: str, request: Request, repo: RepoDep) -> JSONResponse:
+    """Its unfinished runs are cancelled; the family ends `cancelled` (a finished family is
+    left as it is)."""
+    fam = repo.request_family_cancel(family_id)
+    return JSONResponse({"id": fam.id, "status": fam.status,
+                         "cancel_requested": fam.cancel_requested,
+                         "url": url_for(request, "get_family", family_id=fam.id)},
+                        status_code=202)

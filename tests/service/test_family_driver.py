@@ -1,0 +1,118 @@
+"""The family driver (worker.family): a family's plan run as the service's jobs gives the same
+members and checks as `cmrt family run`'s runner with the same seeds; a killed driver resumes;
+cancel and a failed run end the family (synthetic objectives)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from optim.executors import SerialExecutor
+from optim.family import family_checks, parse_family, plan_runs
+from optim.family_run import run_family
+from optim.synthetic import LineFamily
+from store.records import CANCELLED, FAILED, FAMILY_DONE, FAMILY_RUNNING
+from worker.driver import JobDriver
+from worker.executors import LocalPoolExecutor
+from worker.family import FamilyDriver
+
+BASE: dict[str, Any] = {
+    "name": "fam", "family": "fam", "task": {"type": "quiet_stance"},
+    "clip": {"preparation": 1.0, "duration": 0.4, "decay": 1.0},
+    "optimize": {"min_evaluations": 0, "window": 3, "improvement": 0.01, "popsize": 4,
+                 "max_evaluations": 24},
+}
+
+
+def _family(**kw: Any) -> dict[str, Any]:
+    return {"spec": BASE, "param": "clip.decay", "values": [1.0, 1.5, 2.0, 2.5, 3.0],
+            "strategy": "continuation", "from": "both", "leave_out": [2.0],
+            "warm": {"sigma0": 0.05, "window": 2, "max_evaluations": 12}, "k": 2, "seed": 4,
+            **kw}
+
+
+def _objective(fs: Any, value: float) -> LineFamily:
+    return LineFamily(value=value, base=0.1, slope=0.2)
+
+
+@pytest.fixture
+def executor(config):
+    ex = LocalPoolExecutor(config, pool=SerialExecutor(),
+                           objective_factory=lambda spec: _objective(None, spec.clip.decay))
+    yield ex
+    ex.close()
+
+
+def _drive(repo, config, executor, family_id: str, *, stop_after: int | None = None,
+           steps: int = 200) -> str:
+    """Advance the family, running each job it starts to its end in this thread."""
+    started: list[str] = []
+
+    def submit(job_id: str) -> None:
+        started.append(job_id)
+        JobDriver(repo, job_id, executor, config).run()
+
+    driver = FamilyDriver(repo, submit=submit, probe_executor=SerialExecutor(),
+                          objective_for=_objective)
+    status = FAMILY_RUNNING
+    for _ in range(steps):
+        status = driver.advance(family_id)
+        if status != FAMILY_RUNNING or (stop_after is not None and len(started) >= stop_after):
+            break
+    return status
+
+
+def _create(repo, data: dict[str, Any]) -> str:
+    fs = parse_family(data)
+    return repo.create_family(fs.to_dict(), family=fs.family, param=fs.param).id
+
+
+def test_service_family_equals_the_command_lines(repo, config, executor, tmp_path: Path):
+    fid = _create(repo, _family())
+    assert _drive(repo, config, executor, fid) == FAMILY_DONE
+    report = repo.family_report(fid)
+    fs = parse_family(_family())
+    local = run_family(fs, SerialExecutor(), tmp_path / "cli", objective_for=_objective)
+    want = family_checks(fs, local.results, local.probes).to_dict()
+    assert report["checks"] == want
+    assert sorted(report["jobs"]) == sorted(r.id for r in plan_runs(fs) if r.id != "probes")
+    jobs = repo.family_jobs(fid)
+    warm = [j for j in jobs.values() if j.start and j.start["from"].startswith("member-")]
+    assert warm and all(len(j.start["x0"]) == 8 for j in warm)  # warm-started from neighbours
+    assert repo.get_family(fid).status == FAMILY_DONE
+    # each member landed in the library with its parameter
+    decays = {c.decay for c in repo.list_cmrts("fam", limit=100)[0]}
+    assert decays == {1.0, 1.5, 2.0, 2.5, 3.0}
+
+
+def test_a_driver_killed_midway_resumes_to_the_same_family(repo, config, executor):
+    ref = _create(repo, _family())
+    _drive(repo, config, executor, ref)
+    fid = _create(repo, _family())
+    assert _drive(repo, config, executor, fid, stop_after=3) == FAMILY_RUNNING
+    made = dict(repo.get_family(fid).runs)
+    assert _drive(repo, config, executor, fid) == FAMILY_DONE  # a new driver takes over
+    assert all(repo.get_family(fid).runs[k] == v for k, v in made.items())  # no run made twice
+    assert repo.family_report(fid)["checks"] == repo.family_report(ref)["checks"]
+
+
+def test_cancel_ends_the_family_and_its_jobs(repo, config, executor):
+    fid = _create(repo, _family())
+    FamilyDriver(repo, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
+    runs = repo.get_family(fid).runs
+    assert runs and all(repo.get_job(j).status == "queued" for j in runs.values())
+    repo.request_family_cancel(fid)
+    assert FamilyDriver(repo, probe_executor=SerialExecutor()).advance(fid) == CANCELLED
+    assert all(repo.get_job(j).status == CANCELLED for j in runs.values())
+
+
+def test_a_failed_run_fails_the_family_naming_it(repo, config, executor):
+    fid = _create(repo, _family())
+    FamilyDriver(repo, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
+    run_id, job_id = sorted(repo.get_family(fid).runs.items())[0]
+    repo.set_job_status(job_id, FAILED, error="boom")
+    assert FamilyDriver(repo, probe_executor=SerialExecutor()).advance(fid) == FAILED
+    fam = repo.get_family(fid)
+    assert run_id in fam.error and "boom" in fam.error

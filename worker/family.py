@@ -1,0 +1,196 @@
+"""The family driver: a family's plan (optim.family) run as ordinary jobs of the service.
+
+`FamilyDriver.advance(family_id)` is one idempotent step, made every scan by the runner of
+every unfinished family:
+
+    read the family's request and its runs' jobs (store)
+    a run whose job failed or was cancelled (not by the family) -> the family fails, naming it
+    cancel requested -> cancel every unfinished job of the family; `cancelled` once none runs
+    every finished job's result document -> optim.family results (run id -> result)
+    each ready run (`optim.family.ready_runs`: its warm start or its members exist) -> its job,
+        created at most once (`add_family_run`): the run's spec and seed, its start point
+        (`start`: {"from": ..., "x0": ...}) and, for a reduced run, the leave-one-out basis
+        stored as a PCA basis; the job is handed to `submit` so a driver starts at once
+    the probes (the interpolated CMRT at each interior value, once every member exists):
+        evaluated in a process of their own, kept with the family
+    every run finished -> `optim.family.family_report` kept as the family's report; `done`
+
+The same plan, starts, seeds and stopping rules as `cmrt family run` (optim.family_run), and
+a job's result document is the command line's (`optim.run.result_of`), so a family run here
+gives the same members and checks as the command line with the same seeds. Nothing lives only
+in memory: a driver (or API) killed at any point is replaced by the next scan, which finds the
+jobs already made and resumes them like any job.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from optim.executors import Executor, PoolExecutor
+from optim.family import (
+    PROBES,
+    FamilyError,
+    FamilySpec,
+    family_members,
+    family_report,
+    parse_family,
+    plan_runs,
+    probe_points,
+    ready_runs,
+    run_start,
+)
+from optim.family_run import default_objective
+from optim.outcome import EvalOutcome
+from optim.result import OptimizationResult
+from store import Repository
+from store.records import CANCELLED, FAILED, FAMILY_DONE
+
+log = logging.getLogger(__name__)
+
+ObjectiveFor = Callable[[FamilySpec, float], Callable[..., Any]]
+
+
+class FamilyDriver:
+    """Advances families (see module docstring). `submit(job_id)` starts a job's driver now
+    (the scan would find it later anyway); `probe_executor` evaluates the probes (default: a
+    process of its own, so a simulation never holds this process' interpreter)."""
+
+    def __init__(
+        self,
+        repo: Repository,
+        *,
+        submit: Callable[[str], Any] | None = None,
+        probe_executor: Executor | None = None,
+        objective_for: ObjectiveFor = default_objective,
+    ) -> None:
+        self.repo = repo
+        self.submit = submit or (lambda _job_id: None)
+        self._probe_executor = probe_executor
+        self._own_executor = probe_executor is None
+        self.objective_for = objective_for
+        self._lock = threading.Lock()
+        #: Parsed results of finished runs, per family (a finished job's result never changes).
+        self._results: dict[str, dict[str, OptimizationResult]] = {}
+
+    def close(self) -> None:
+        if self._own_executor and self._probe_executor is not None:
+            self._probe_executor.close()
+            self._probe_executor = None
+
+    def _probes_executor(self) -> Executor:
+        if self._probe_executor is None:
+            self._probe_executor = PoolExecutor(1)
+        return self._probe_executor
+
+    def advance(self, family_id: str) -> str:
+        """One step of the family (see module docstring); returns its status after it."""
+        with self._lock:  # one step at a time in this process; other processes may race
+            fam = self.repo.get_family(family_id)
+            if fam.terminal:
+                self._results.pop(family_id, None)
+                return fam.status
+            try:
+                fs = parse_family(fam.spec)
+            except FamilyError as err:
+                return self.repo.finish_family(family_id, FAILED, error=str(err)).status
+            runs = plan_runs(fs)
+            jobs = self.repo.family_jobs(family_id)
+            if fam.cancel_requested:
+                return self._cancel(family_id, jobs)
+            for run_id, job in jobs.items():
+                if job.status in (FAILED, CANCELLED):
+                    why = job.error or job.status
+                    log.error("family %s: run %s (job %s) %s", family_id, run_id, job.id, why)
+                    self._cancel_jobs(jobs)
+                    self._results.pop(family_id, None)
+                    return self.repo.finish_family(
+                        family_id, FAILED, error=f"run {run_id} (job {job.id}): {why}").status
+            results = self._finished(family_id, jobs)
+            probes = self._stored_probes(family_id)
+            done = set(results) | ({PROBES} if probes is not None else set())
+            running = {rid for rid, j in jobs.items() if rid not in results}
+            for run in ready_runs(runs, done, running):
+                if run.kind == PROBES:
+                    probes = self._evaluate_probes(family_id, fs, runs, results)
+                    done.add(PROBES)
+                    continue
+                self._start(family_id, fs, run, runs, results)
+            if all(r.id in done for r in runs):
+                report = family_report(fs, results, probes,
+                                       extra={"family_id": family_id,
+                                              "jobs": {k: j.id for k, j in jobs.items()}})
+                self._results.pop(family_id, None)
+                return self.repo.finish_family(family_id, FAMILY_DONE, report=report).status
+            return fam.status
+
+    # -- pieces --------------------------------------------------------------------------------
+    def _cancel_jobs(self, jobs: dict[str, Any]) -> list[Any]:
+        live = [j for j in jobs.values() if not j.terminal]
+        for j in live:
+            self.repo.request_cancel(j.id)
+        return live
+
+    def _cancel(self, family_id: str, jobs: dict[str, Any]) -> str:
+        live = self._cancel_jobs(jobs)
+        if any(not self.repo.get_job(j.id).terminal for j in live):
+            return self.repo.get_family(family_id).status  # their drivers stop them
+        self._results.pop(family_id, None)
+        return self.repo.finish_family(family_id, CANCELLED).status
+
+    def _finished(self, family_id: str, jobs: dict[str, Any]) -> dict[str, OptimizationResult]:
+        cache = self._results.setdefault(family_id, {})
+        want = [rid for rid, j in jobs.items() if j.terminal and rid not in cache]
+        for rid, doc in self.repo.family_results(family_id, want).items():
+            cache[rid] = OptimizationResult.from_dict(doc, f"run {rid}")
+        return dict(cache)
+
+    def _stored_probes(self, family_id: str) -> dict[float, EvalOutcome] | None:
+        raw = self.repo.family_probes(family_id)
+        if raw is None:
+            return None
+        return {float(v): EvalOutcome.from_dict(o) for v, o in raw}
+
+    def _start(self, family_id: str, fs: FamilySpec, run: Any, runs: list[Any],
+               results: dict[str, OptimizationResult]) -> None:
+        st = run_start(fs, run, runs, results)
+        basis_id = None
+        if st.basis is not None:
+            b = st.basis
+            basis_id = self.repo.add_basis(
+                family=fs.family, k=b.k, mean=[float(v) for v in b.mean],
+                components=[[float(v) for v in row] for row in b.components],
+                variance_explained=[float(v) for v in b.variance_explained],
+                members=[f"{family_id}/{rid}" for rid in sorted(results) if rid != run.id],
+                box={"score_lo": [float(v) for v in b.score_lo],
+                     "score_hi": [float(v) for v in b.score_hi],
+                     "margin": b.margin, "cmrt": b.cmrt, "content_id": b.id},
+            )
+        start = None if st.x0 is None else {"from": st.start,
+                                            "x0": [float(v) for v in np.asarray(st.x0)]}
+        spec = st.spec
+        job = self.repo.add_family_run(family_id, run.id, {
+            "spec": spec.model_dump(mode="json"), "name": spec.name,
+            "family": spec.family_name, "task": spec.task_type, "seed": fs.seed,
+            "basis_id": basis_id, "start": start})
+        log.info("family %s: run %s is job %s%s", family_id, run.id, job.id,
+                 f" (from {st.start})" if st.start != "flat" else "")
+        if not job.terminal:
+            self.submit(job.id)
+
+    def _evaluate_probes(self, family_id: str, fs: FamilySpec, runs: list[Any],
+                         results: dict[str, OptimizationResult]) -> dict[float, EvalOutcome]:
+        members = {v: res for v, (_, res) in family_members(runs, results).items()}
+        ex = self._probes_executor()
+        got: dict[float, EvalOutcome] = {}
+        for v, params, _lo, _hi in probe_points(fs, members):
+            got[v] = ex.map(self.objective_for(fs, v), [params])[0]
+        self.repo.set_family_probes(family_id, [[v, o.to_dict()] for v, o in sorted(got.items())])
+        return got
+
+
+__all__ = ["FamilyDriver"]
