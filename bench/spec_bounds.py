@@ -11,8 +11,9 @@ an abort inside ODE (`dMassCheck`, `dxNormalize4`: exit status -6) is seen as su
 sweep goes on. Each case ends as one of: `ran` (objective, fell or not), `failed` (a
 simulation error the service reports as a failed evaluation: divergence, a non-finite
 controller), `refused` (a rule across fields refuses that end with this example's other
-values, e.g. a chain too short for the box distance), or `DIED` (the process died: a range to
-narrow). Prints one line per case and the counts; exits 1 if any case died.
+values, e.g. a chain too short for the box distance), `ERROR` (another exception: the scene
+cannot be built from a valid spec, a range to narrow) or `DIED` (the process died: a range to
+narrow). Prints one line per case and the counts; exits 1 if any case died or erred.
 """
 
 from __future__ import annotations
@@ -56,6 +57,8 @@ def _simulate(data: dict[str, Any], conn: Any) -> None:
         conn.send({"outcome": "ran", "objective": e.objective, "fell": e.fell})
     except SimError as err:
         conn.send({"outcome": "failed", "error": str(err)[:200]})
+    except Exception as err:  # noqa: BLE001 - a valid spec the simulator cannot build: a bug
+        conn.send({"outcome": "ERROR", "error": f"{type(err).__name__}: {str(err)[:200]}"})
     conn.close()
 
 
@@ -66,7 +69,12 @@ def run_case(data: dict[str, Any]) -> dict[str, Any]:
     t0 = time.monotonic()
     proc.start()
     child.close()
-    result = parent.recv() if parent.poll(CASE_SECONDS) else None
+    result = None
+    if parent.poll(CASE_SECONDS):
+        try:
+            result = parent.recv()
+        except EOFError:  # the child died before sending anything
+            result = None
     proc.join(timeout=5)
     if proc.is_alive():
         proc.kill()
@@ -118,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.write_text(json.dumps({"counts": counts, "cases": rows}, indent=1))
     print(f"{len(rows)} cases in {time.monotonic() - t0:.0f} s: "
           + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
-    return 1 if counts.get("DIED") else 0
+    return 1 if counts.get("DIED") or counts.get("ERROR") else 0
 
 
 if __name__ == "__main__":

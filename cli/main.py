@@ -236,6 +236,42 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_driver(args: argparse.Namespace) -> int:
+    """Job and family drivers in a process of their own (no HTTP): the scanner takes every
+    job and family without a live driver, as the API's drivers do, until SIGTERM / SIGINT."""
+    import signal
+    import threading
+
+    from cmrt.settings import get_settings
+    from store import open_repository
+    from worker.executors import make_generation_executor
+    from worker.runner import JobRunner
+
+    settings = get_settings()
+    if args.workers is not None:
+        settings = settings.model_copy(update={"workers": args.workers})
+    level = (args.log_level or settings.log_level).upper()
+    logging.basicConfig(level=level, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        repo = open_repository(settings.database_url)
+        executor = make_generation_executor(settings)
+    except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
+        return _die(f"driver: {err}")
+    runner = JobRunner(repo, executor, settings)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    runner.start()
+    logging.getLogger("cmrt.driver").info(
+        "driving jobs and families (%s executor), scanning every %g s", executor.kind,
+        settings.scan_interval)
+    stop.wait()
+    runner.stop(timeout=10)  # running jobs keep their state; the next driver resumes them
+    executor.close()
+    return 0
+
+
 def cmd_worker(args: argparse.Namespace) -> int:
     """A Celery worker evaluating candidates (needs CMRT_BROKER_URL)."""
     from cmrt.settings import get_settings
@@ -343,6 +379,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local pool processes in embedded mode (default CMRT_WORKERS)")
     v.add_argument("--log-level", help="uvicorn log level (default CMRT_LOG_LEVEL, info)")
     v.set_defaults(func=cmd_serve)
+
+    d = sub.add_parser("driver", help="drive jobs and families in a process of their own",
+                       description="Run the job and family drivers without the HTTP API: "
+                       "every job or family without a live driver is taken and driven (a "
+                       "lease admits one driver per job). Run the API with "
+                       "CMRT_API_DRIVERS=false to scale or restart it without stopping jobs.")
+    d.add_argument("--workers", type=_positive_int,
+                   help="local pool processes in embedded mode (default CMRT_WORKERS)")
+    d.add_argument("--log-level", help="log level (default CMRT_LOG_LEVEL, info)")
+    d.set_defaults(func=cmd_driver)
 
     w = sub.add_parser("worker", help="run a Celery evaluation worker (needs CMRT_BROKER_URL)",
                        description="Start a Celery worker evaluating CMRT candidates from the "

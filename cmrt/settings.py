@@ -38,6 +38,8 @@ CMRT_API_TOKEN            bearer token the API requires; unset: open  None
 CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
 CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
 CMRT_SIMULATION_WORKERS   API processes for POST /simulations clips   1
+CMRT_API_DRIVERS          `cmrt serve` drives jobs and families;      true
+                          false: `cmrt driver` processes do
 CMRT_URL                  the service the client commands talk to     CMRT_PUBLIC_URL, else
                           (`cmrt submit/jobs/watch/library`)          http://<api_host>:<port>
 ========================  ==========================================  =========================
@@ -122,6 +124,10 @@ class Settings(BaseSettings):
 
     #: Processes of the API's own pool for what-if clips (POST /simulations).
     simulation_workers: Annotated[int, Field(ge=1, le=64)] = 1
+
+    #: Whether `cmrt serve` drives jobs and families itself (the embedded default); false when
+    #: `cmrt driver` processes of their own do, so the API can be scaled or restarted alone.
+    api_drivers: bool = True
 
     #: The service `cmrt submit / jobs / watch / library` talk to (cmrt.client); None: the
     #: public URL, else this host's API address (`client_url`).

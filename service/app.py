@@ -49,12 +49,15 @@ def create_app(
     *,
     repo: Repository | None = None,
     executor: GenerationExecutor | None = None,
-    run_drivers: bool = True,
+    run_drivers: bool | None = None,
 ) -> FastAPI:
     """Build the app. Defaults: settings from the environment (`cmrt.settings.get_settings`),
     repository migrated to the newest schema, executor chosen by the broker setting.
-    `run_drivers=False`: jobs are accepted and stored but not driven (HTTP-layer tests)."""
+    `run_drivers=False` (default: `settings.api_drivers`): jobs and families are accepted and
+    stored but driven elsewhere (`cmrt driver`), or not at all (HTTP-layer tests)."""
     settings = settings or get_settings()
+    if run_drivers is None:
+        run_drivers = settings.api_drivers
     repo = repo or open_repository(settings.database_url)
     executor = executor or make_generation_executor(settings)
     svc = Services(settings=settings, repo=repo, executor=executor,

@@ -58,7 +58,7 @@ from sim.character import (
 from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
 from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
-from sim.specbase import StrictModel, quantity
+from sim.specbase import StrictModel, count, quantity
 from sim.tasks import TASK_TYPES
 from sim.tasks.base import MAX_CLIP_SECONDS
 
@@ -189,7 +189,7 @@ class GainSchedule(_Strict):
 class CmrtConfig(_Strict):
     """How a parameter vector in [0, 1]^d decodes into a CMRT spline (see optim.spline)."""
 
-    knots: Annotated[int, Field(ge=1, le=16)] = 4
+    knots: count(1, 16, "knots") = 4
     vertical: bool = False
     max_displacement: quantity(0.001, 0.5, "m") = 0.15
     max_vertical: quantity(0.001, 0.3, "m") = 0.08
@@ -200,10 +200,10 @@ class OptimizeConfig(_Strict):
 
     threshold: quantity(1e-6, 1e6, "(objective)") | None = None
     sigma0: quantity(0.001, 1.0, "(of the unit cube)") = 0.2
-    popsize: Annotated[int, Field(ge=2, le=200)] | None = None
-    min_evaluations: Annotated[int, Field(ge=0, le=MAX_EVALUATIONS)] = 700
-    max_evaluations: Annotated[int, Field(ge=1, le=MAX_EVALUATIONS)] = 2000
-    window: Annotated[int, Field(ge=1, le=MAX_EVALUATIONS)] = 100
+    popsize: count(2, 200, "candidates") | None = None
+    min_evaluations: count(0, MAX_EVALUATIONS, "evaluations") = 700
+    max_evaluations: count(1, MAX_EVALUATIONS, "evaluations") = 2000
+    window: count(1, MAX_EVALUATIONS, "evaluations") = 100
     improvement: quantity(1e-4, 0.999, "(fraction)") = 0.05
 
 

@@ -88,3 +88,17 @@ def quantity(lo: float, hi: float, unit: str) -> Any:
     small = f"; 0 or at least {MIN_MAGNITUDE:g} in size" if lo <= 0 <= hi else ""
     return Annotated[float, Field(ge=lo, le=hi, description=rule + small),
                      BeforeValidator(check)]
+
+
+def count(lo: int, hi: int, unit: str) -> Any:
+    """The type of a whole number of `unit` (knots, links, evaluations) in [lo, hi]: a strict
+    int, refused out of range with the unit and the range in the message."""
+    rule = f"from {lo} to {hi} {unit}"
+
+    def check(v: Any) -> Any:
+        if isinstance(v, int) and not isinstance(v, bool) and not lo <= v <= hi:
+            raise ValueError(f"must be {rule}, got {_shown(v)}")
+        return v  # anything but an int: the strict int type reports it
+
+    return Annotated[int, Field(ge=lo, le=hi, description=rule), BeforeValidator(check)]
+

@@ -28,14 +28,13 @@ from __future__ import annotations
 
 import math
 from functools import cached_property
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field
 
 from sim.dynamics import ModelArrays, forward_kinematics
 from sim.props import PropDef
-from sim.specbase import StrictModel, quantity
+from sim.specbase import StrictModel, count, quantity
 from sim.tasks.base import Pose, Task, TaskConfig, check_pose, pose_offsets
 from sim.trajectory import MotionDef
 
@@ -53,7 +52,7 @@ class Chain(StrictModel):
     """The chain: total mass (kg), number of links, total length (m), link radius (m)."""
 
     mass: quantity(0.1, 50.0, "kg") = 2.25
-    links: Annotated[int, Field(ge=2, le=20)] = 6
+    links: count(2, 20, "links") = 6
     length: quantity(0.1, 5.0, "m") = 1.4
     radius: quantity(0.005, 0.05, "m") = 0.015
 

@@ -33,7 +33,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field
 
 from sim.props import Hanging, PropDef
-from sim.specbase import StrictModel, quantity
+from sim.specbase import StrictModel, count, quantity
 from sim.tasks.base import (
     MIN_MOTION_SECONDS,
     ClipTime,
@@ -90,7 +90,7 @@ class PunchConfig(TaskConfig):
     radius: quantity(0.02, 1.0, "m") = 0.18
     length: quantity(0.05, 3.0, "m") = 0.6
     rope: quantity(0.05, 5.0, "m") = 0.9
-    links: Annotated[int, Field(ge=0, le=20)] = 0
+    links: count(0, 20, "links") = 0
 
     def punch_windows(self, clip: Any) -> list[tuple[float, float]]:
         """(start s, duration s) of every punch in clip time."""

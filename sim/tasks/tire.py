@@ -59,7 +59,7 @@ class Tire(StrictModel):
 
     mass: quantity(MIN_TIRE_MASS_KG, MAX_TIRE_MASS_KG, "kg") = 32.0
     radius: quantity(0.1, 0.8, "m") = 0.35
-    inner_radius: quantity(0.0, 0.7, "m") = 0.22
+    inner_radius: quantity(0.01, 0.7, "m") = 0.22  # a disc of 0 inner radius is no tire
     restitution: quantity(0.0, 1.0, "(coefficient)") = 0.6
     friction: quantity(0.01, 5.0, "(coefficient)") = 0.8
 

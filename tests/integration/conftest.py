@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
 import time
 from pathlib import Path
@@ -33,10 +34,17 @@ WORKER_FAULTS = {"CMRT_FAULT_CRASH_ON": "poison:0:1",
                  "CMRT_FAULT_DELAY_ON": f"it_fault_*:1:0:{FAULT_WINDOW_S:g}"}
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 @pytest.fixture(scope="session")
 def topology():
     work = Path(tempfile.mkdtemp(prefix="cmrt-it-"))
     topo = None
+    # SIGTERM (a CI step's timeout, `kill`) as an interrupt, so that the finally below removes
+    # the processes, namespaces, containers, networks and volumes of the run
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         topo = make_topology(work, dict(OVERRIDES))
         topo.start_redis()
@@ -59,6 +67,7 @@ def topology():
             import shutil
 
             shutil.rmtree(work, ignore_errors=True)
+        signal.signal(signal.SIGTERM, previous)
 
 
 @pytest.fixture
@@ -130,3 +139,29 @@ def bookkeeping(api: httpx.Client, job_id: str) -> dict:
     return {"expected": pop, "done": done, "lost": pop - done - sum(g["failed"] for g in gens),
             "failed": sum(g["failed"] for g in gens),
             "repeated": sum(g["repeated"] for g in gens), "per_generation": gens}
+
+
+def result_of(api: httpx.Client, job_id: str) -> dict:
+    """What a job computed: its best objective and parameters and every generation's
+    statistics (not its timings): equal for two runs of one spec and seed whatever happened
+    to the workers, the driver or the broker on the way."""
+    job = api.get(f"/jobs/{job_id}").json()
+    best = api.get(f"/jobs/{job_id}/best").json()
+    gens = api.get(f"/jobs/{job_id}/generations").json()["generations"]
+    return {"status": job["status"], "best_objective": job["best_objective"],
+            "params": best["params"],
+            "generations": [{k: v for k, v in g.items() if k not in ("wall_time", "created_at")}
+                            for g in gens]}
+
+
+def same_as_uninterrupted(api: httpx.Client, job_id: str, timeout: float = 180) -> bool:
+    """Runs the job's spec again with its seed, nothing interrupting it, and says whether the
+    two results are equal (`result_of`); prints the verdict."""
+    job = api.get(f"/jobs/{job_id}").json()
+    again = submit(api, job["spec"], seed=job["seed"])
+    wait_job(api, again, timeout)
+    a, b = result_of(api, job_id), result_of(api, again)
+    same = a == b
+    print(f"[{job['spec']['name']}] result equal to the uninterrupted run with seed "
+          f"{job['seed']}: {same} (best {a['best_objective']!r} vs {b['best_objective']!r})")
+    return same

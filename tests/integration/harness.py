@@ -593,6 +593,29 @@ class LocalTopology(BaseTopology):
 
 #: Application services whose environment the override file extends.
 APP_SERVICES = ("api", "worker")
+#: The compose file's health checks, run more often for the tests (the file's intervals, 10 s
+#: and 30 s, are for production; Docker 20.10 has no start_interval). Readiness in compose
+#: mode is what these report (`docker inspect` .State.Health).
+TEST_HEALTHCHECKS = {"api": {"interval": "2s"}, "worker": {"interval": "4s"},
+                     "redis": {"interval": "1s"}, "postgres": {"interval": "1s"}}
+#: Compose projects of this harness are named `cmrt-it-<pid of the test process>-<random>`;
+#: one whose process is gone is a leftover of a killed run, removed by the next run.
+PROJECT_RE = re.compile(r"cmrt-it-(\d+)-[0-9a-f]+")
+
+
+def compose_command(docker: str = "docker") -> list[str]:
+    """The compose command of this machine: `docker compose` (v2) where that plugin answers,
+    else `docker-compose` (v1, Debian's). Both take the same options the harness uses."""
+    try:
+        if subprocess.run([docker, "compose", "version"], capture_output=True,
+                          timeout=30).returncode == 0:
+            return [docker, "compose"]
+    except (OSError, subprocess.TimeoutExpired):
+        pass
+    if shutil.which("docker-compose"):
+        return ["docker-compose"]
+    raise RuntimeError("compose mode needs `docker compose` (v2) or `docker-compose` (v1); "
+                       "scripts/docker-engine.sh installs one")
 
 
 class Container:
@@ -603,10 +626,22 @@ class Container:
         self.name = name
         self.id = cid
 
+    def inspect(self, fmt: str) -> str:
+        return self.topo.docker("inspect", "-f", fmt, self.id, check=False).strip()
+
     @property
     def alive(self) -> bool:
-        out = self.topo.docker("inspect", "-f", "{{.State.Running}}", self.id, check=False)
-        return out.strip() == "true"
+        return self.inspect("{{.State.Running}}") == "true"
+
+    @property
+    def health(self) -> str:
+        """What the compose file's health check says: healthy, unhealthy, starting, or ""."""
+        return self.inspect("{{if .State.Health}}{{.State.Health.Status}}{{end}}")
+
+    @property
+    def pid(self) -> int:
+        """The container's main process as this machine sees it (0 if not running)."""
+        return int(self.inspect("{{.State.Pid}}") or 0)
 
     def kill9(self) -> None:
         self.topo.docker("kill", "-s", "KILL", self.id, check=False)
@@ -618,32 +653,50 @@ class Container:
         self.topo.docker("stop", self.id, check=False)
 
     def tail(self, n: int = 40) -> str:
-        return self.topo.docker("logs", "--tail", str(n), self.id, check=False)
+        return self.topo.docker("logs", "--tail", str(n), self.id, check=False, stderr=True)
 
     @property
     def log(self) -> Path:
         path = self.topo.workdir / f"{self.name}.log"
-        path.write_text(self.topo.docker("logs", self.id, check=False))
+        path.write_text(self.topo.docker("logs", self.id, check=False, stderr=True))
         return path
 
     def busy(self) -> bool:
         return _busy(self.tail(20))
 
     def ready(self) -> bool:
-        """Running, and its Celery worker said "ready" since its last start."""
-        started = self.topo.docker("inspect", "-f", "{{.State.StartedAt}}", self.id,
-                                   check=False).strip()
-        if not started or not self.alive:
+        """Running, healthy by the compose file's check, and its Celery worker said "ready"
+        since its last start (a health check passed before a restart is not enough)."""
+        if not self.alive or self.health != "healthy":
             return False
-        return " ready." in self.topo.docker("logs", "--since", started, self.id, check=False)
+        started = self.inspect("{{.State.StartedAt}}")
+        return " ready." in self.topo.docker("logs", "--since", started, self.id, check=False,
+                                             stderr=True)
+
+
+def sweep_stale_projects(topo: ComposeTopology) -> list[str]:
+    """`down -v` the compose projects left by runs whose test process is gone (killed before
+    their finalizers ran): their containers, networks and volumes. Returns the names removed."""
+    out = topo.docker("ps", "-a", "--filter", "label=com.docker.compose.project",
+                      "--format", '{{.Label "com.docker.compose.project"}}', check=False)
+    out += topo.docker("volume", "ls", "--filter", "label=com.docker.compose.project",
+                       "--format", '{{.Label "com.docker.compose.project"}}', check=False)
+    removed = []
+    for name in sorted(set(out.split())):
+        m = PROJECT_RE.fullmatch(name)
+        if m is None or _pid_alive(int(m.group(1))):
+            continue
+        topo.run([*topo.compose_cmd, "-p", name, "-f", str(COMPOSE), "down", "-v",
+                  "--remove-orphans", "--timeout", "5"], check=False)
+        removed.append(name)
+    return removed
 
 
 class ComposeTopology(BaseTopology):
     """The topology run by `docker compose` itself (see module docstring)."""
 
     mode = "compose"
-    worker_link_unavailable = ("compose mode: cutting a container's link is not implemented; "
-                               "the partition drill runs in local mode (CMRT_IT_MODE=local)")
+    worker_link_unavailable = None
 
     def __init__(self, workdir: Path, overrides: dict[str, str] | None = None,
                  docker: str = "docker") -> None:
@@ -651,32 +704,44 @@ class ComposeTopology(BaseTopology):
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.overrides = dict(overrides or {})
         self.docker_cmd = docker
-        self.project = f"cmrt-it-{uuid.uuid4().hex[:8]}"
+        self.compose_cmd = compose_command(docker)
+        self.project = f"cmrt-it-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.api_port = free_port()
         self.override_file = self.workdir / "docker-compose.it.yml"
         self.extra: dict[str, dict[str, str]] = {name: {} for name in APP_SERVICES}
         self.procs: dict[str, list[Container]] = {}
+        self.cut_links: list[str] = []
         self._write_override()
 
     # -- docker ------------------------------------------------------------------------------
-    def docker(self, *args: str, check: bool = True, timeout: float = 900) -> str:
-        # the overrides also reach the compose file's own ${VAR} interpolation
+    def run(self, argv: list[str], check: bool = True, timeout: float = 900,
+            stderr: bool = False) -> str:
+        """Runs `argv` (a docker or compose command) with the overrides in its environment (so
+        they reach the compose file's own ${VAR} interpolation); its stdout (and stderr)."""
         env = {**os.environ, **self.overrides, "CMRT_API_PORT": str(self.api_port)}
-        r = subprocess.run([self.docker_cmd, *args], cwd=ROOT, env=env, capture_output=True,
-                           text=True, timeout=timeout)
+        env.pop("CMRT_API_BIND", None)  # the tests check the default: loopback only
+        r = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True,
+                           timeout=timeout)
         if check and r.returncode != 0:
-            raise RuntimeError(f"docker {' '.join(args)} failed ({r.returncode}):\n"
+            raise RuntimeError(f"{' '.join(argv)} failed ({r.returncode}):\n"
                                f"{r.stdout}{r.stderr}")
-        return r.stdout
+        return r.stdout + (r.stderr if stderr else "")
 
-    def compose(self, *args: str, check: bool = True) -> str:
-        return self.docker("compose", "-p", self.project, "-f", str(COMPOSE),
-                           "-f", str(self.override_file), *args, check=check)
+    def docker(self, *args: str, check: bool = True, timeout: float = 900,
+               stderr: bool = False) -> str:
+        return self.run([self.docker_cmd, *args], check=check, timeout=timeout, stderr=stderr)
+
+    def compose(self, *args: str, check: bool = True, timeout: float = 900) -> str:
+        return self.run([*self.compose_cmd, "-p", self.project, "-f", str(COMPOSE),
+                         "-f", str(self.override_file), *args], check=check, timeout=timeout)
 
     def _write_override(self) -> None:
-        """The tests' settings on top of docker-compose.yml (compose merges `environment`)."""
-        services = {name: {"environment": {**self.overrides, **self.extra[name]}}
-                    for name in APP_SERVICES}
+        """The tests' settings on top of docker-compose.yml (compose merges `environment` and
+        `healthcheck`)."""
+        services = {name: {"healthcheck": dict(check)}
+                    for name, check in TEST_HEALTHCHECKS.items()}
+        for name in APP_SERVICES:
+            services[name]["environment"] = {**self.overrides, **self.extra[name]}
         self.override_file.write_text(yaml.safe_dump({"services": services}, sort_keys=True))
 
     def _containers(self, name: str) -> list[Container]:
@@ -688,10 +753,22 @@ class ComposeTopology(BaseTopology):
         self.procs[name] = out
         return out
 
+    def _wait_healthy(self, name: str, count: int = 1, timeout: float = 120) -> None:
+        """Until `count` replicas of `name` are running and healthy by the compose file's check
+        (what `docker compose up --wait` does; v1 has no --wait)."""
+        def ok() -> bool:
+            return sum(c.alive and c.health == "healthy" for c in self._containers(name)) >= count
+        self._wait(ok, f"{count} healthy {name}", timeout)
+
+    def up(self, name: str) -> None:
+        """The service up (created or started) and healthy, without touching its dependencies."""
+        self.compose("up", "-d", "--no-deps", "--no-build", name)
+        self._wait_healthy(name)
+
     # -- infrastructure ----------------------------------------------------------------------
     def start_redis(self) -> None:
-        self.compose("up", "-d", "--wait", "redis")
-        self._containers("redis")
+        sweep_stale_projects(self)
+        self.up("redis")
 
     def stop_redis(self, wipe: bool = False) -> None:
         self.compose("kill", "-s", "KILL", "redis", check=False)
@@ -700,19 +777,28 @@ class ComposeTopology(BaseTopology):
             self.docker("volume", "rm", "-f", f"{self.project}_redisdata", check=False)
 
     def create_database(self) -> None:
-        self.compose("up", "-d", "--wait", "postgres")  # the image creates the database
+        self.up("postgres")  # the image creates the database
 
     def drop_database(self) -> None:
         pass  # `down -v` in stop_all removes its volume
 
     def drop_database_connections(self) -> int:
-        out = self.compose(
-            "exec", "-T", "postgres", "psql", "-U", "cmrt", "-d", "cmrt", "-tAc",
-            "SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity "
-            "WHERE datname = 'cmrt' AND pid <> pg_backend_pid()")
-        return int(out.strip().splitlines()[-1])
+        return int(self.sql("SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity "
+                            "WHERE datname = 'cmrt' AND pid <> pg_backend_pid()")[-1])
+
+    def sql(self, query: str) -> list[str]:
+        """Rows of `query` on the application's database (psql in the postgres container,
+        columns joined by |)."""
+        out = self.compose("exec", "-T", "postgres", "psql", "-U", "cmrt", "-d", "cmrt", "-tAc",
+                           query)
+        return [ln for ln in out.splitlines() if ln.strip()]
+
+    def inspect_json(self, container: Container, fmt: str):
+        return json.loads(container.inspect(fmt))
 
     def warm_up(self) -> None:
+        """The application image built as the compose file says (from the layer cache when
+        scripts/docker-images.sh built it already)."""
         self.compose("build", "api")
 
     # -- application services ----------------------------------------------------------------
@@ -724,16 +810,20 @@ class ComposeTopology(BaseTopology):
         if name == "api" and running:  # one API: it publishes the port (a restart policy may
             return running[0]  # have brought it back already)
         before = {c.id for c in running}
-        # One more running replica: compose starts a stopped one before creating a new one.
-        # --no-deps: a worker must not bring the api up behind the tests' back (they start it).
-        self.compose("up", "-d", "--no-deps", "--no-recreate", "--no-build", "--scale",
-                     f"{name}={len(before) + 1}", name)
+        self.scale(name, len(before) + 1)
         fresh = [c for c in self._containers(name) if c.alive and c.id not in before]
         if not fresh:
             raise RuntimeError(f"docker compose started no new {name} replica:\n{self.logs()}")
         if name == "api":
+            self._wait_healthy("api")
             self._wait(self._api_ready, "api", 120, fresh[0])
         return fresh[0]
+
+    def scale(self, name: str, count: int) -> None:
+        """`count` running replicas of `name`: compose starts stopped ones before creating new
+        ones. --no-deps: a worker must not bring the api up behind the tests' back."""
+        self.compose("up", "-d", "--no-deps", "--no-recreate", "--no-build", "--scale",
+                     f"{name}={count}", name)
 
     def wait_workers_ready(self, count: int, timeout: float = 120) -> None:
         self._wait(lambda: sum(c.ready() for c in self._containers("worker")) >= count,
@@ -746,7 +836,48 @@ class ComposeTopology(BaseTopology):
         return self.compose("logs", "--no-color", "--tail", "60", check=False)
 
     def stop_all(self) -> None:
+        for link in self.cut_links:  # a drill stopped half way: no interface left down
+            _ip("link", "set", link, "up", check=False)
         self.compose("down", "-v", "--remove-orphans", "--timeout", "10", check=False)
+
+    # -- the workers' links ------------------------------------------------------------------
+    def _host_links(self, container: Container) -> list[str]:
+        """The machine's ends of the container's veth links (one per network it is on)."""
+        pid = container.pid
+        r = subprocess.run(["nsenter", "-t", str(pid), "-n", "sh", "-c",
+                            "cat /sys/class/net/*/iflink"], capture_output=True, text=True,
+                           timeout=30)
+        wanted = {int(x) for x in r.stdout.split()}
+        links = []
+        for line in _ip("-o", "link").splitlines():
+            index, name = line.split(":")[:2]
+            if int(index) in wanted:
+                links.append(name.strip().split("@")[0])
+        return links
+
+    def cut_worker_link(self) -> None:
+        """Every running worker container's link set down on the machine's side: its packets
+        vanish without an answer, as in local mode (NetnsHost.cut)."""
+        for c in self._containers("worker"):
+            if c.alive:
+                for link in self._host_links(c):
+                    _ip("link", "set", link, "down")
+                    self.cut_links.append(link)
+
+    def restore_worker_link(self) -> None:
+        while self.cut_links:
+            _ip("link", "set", self.cut_links.pop(), "up")
+
+    def workers_answering(self, timeout: float = 1.0) -> list[str]:
+        """Node names of the Celery workers that answer a broadcast ping now, sent from the
+        API's container (Redis is reachable on the compose network only)."""
+        code = ("import json, sys; from celery import Celery; "
+                "app = Celery('cmrt-it-ping', broker='redis://redis:6379/0'); "
+                "print(json.dumps(app.control.ping(timeout=float(sys.argv[1]))))")
+        out = self.compose("exec", "-T", "api", "python", "-c", code, str(timeout),
+                           timeout=60 + timeout)
+        return sorted(name for reply in json.loads(out.strip().splitlines()[-1])
+                      for name in reply)
 
 
 def make_topology(workdir: Path, overrides: dict[str, str] | None = None) -> BaseTopology:

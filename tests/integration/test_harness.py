@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import stat
 import sys
 import time
@@ -77,7 +78,13 @@ elif args[0] == "inspect":
     c = cs.get(args[-1])
     if c is None:
         sys.exit(1)
-    print("2026-12-02T00:00:00Z" if "StartedAt" in args[2] else str(c["running"]).lower())
+    fmt = args[2]
+    if "StartedAt" in fmt:
+        print("2026-12-02T00:00:00Z")
+    elif "Health" in fmt:
+        print("healthy" if c["running"] else "unhealthy")
+    else:
+        print(str(c["running"]).lower())
 elif args[0] == "kill":
     cs[args[-1]]["running"] = False
 elif args[0] == "logs":
@@ -142,16 +149,19 @@ def test_compose_session_as_the_topology_tests_drive_it(fake_docker, tmp_path):
     topo.wait_workers_ready(2)
 
     # every compose call names the private project, the compose file and the override file
+    assert topo.compose_cmd == ["docker", "compose"]  # v2 answers `docker compose version`
     for c in fake_docker():
-        if c[0] == "compose":
+        if c[0] == "compose" and c[1] != "version":
             assert c[1:3] == ["-p", topo.project] and c[3:5] == ["-f", str(Path(
                 "docker-compose.yml").resolve())] and c[5:7] == ["-f", str(topo.override_file)]
     override = yaml.safe_load(topo.override_file.read_text())["services"]
     assert override["worker"]["environment"] == {"CMRT_LEASE_SECONDS": "3", **faults}
     assert override["api"]["environment"] == {"CMRT_LEASE_SECONDS": "3"}
+    assert override["api"]["healthcheck"] == {"interval": "2s"}  # compose's checks, sooner
     ups = _compose_calls(fake_docker, "up")
-    assert ups[0][-1] == "redis" and "--wait" in ups[0]
-    assert ups[1][-1] == "postgres" and "--wait" in ups[1]
+    assert ups[0][-1] == "redis" and "--no-deps" in ups[0]
+    assert ups[1][-1] == "postgres" and "--no-deps" in ups[1]
+    assert re.fullmatch(r"cmrt-it-\d+-[0-9a-f]{8}", topo.project)
     assert [u[-2:] for u in ups[2:]] == [["worker=1", "worker"], ["worker=2", "worker"],
                                          ["api=1", "api"]]
     assert all("--no-deps" in u and "--no-recreate" in u for u in ups[2:])

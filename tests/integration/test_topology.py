@@ -2,7 +2,8 @@
 
 Every fault test prints and checks its bookkeeping: evaluations lost (stored results missing:
 must be 0) and repeated (attempts beyond the first, i.e. candidates evaluated again because a
-worker, the driver or the broker died under them).
+worker, the driver or the broker died under them), and that the job's result equals that of
+its spec and seed run again uninterrupted (conftest.same_as_uninterrupted).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import sys
 import time
 
 import pytest
-from conftest import WORKER_FAULTS, bend, bookkeeping, submit, wait_job
+from conftest import WORKER_FAULTS, bend, bookkeeping, same_as_uninterrupted, submit, wait_job
 
 pytestmark = [pytest.mark.redis, pytest.mark.postgres]
 
@@ -58,9 +59,37 @@ def test_jobs_converge_land_in_library_and_interpolate_and_cancel(api):
     assert health["database"] == "ok" and health["broker"] == "ok"
 
 
+def _container_ip(topology, name: str) -> str:
+    c = next(c for c in topology._containers(name) if c.alive)
+    return c.inspect("{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}")
+
+
 def test_workers_run_on_a_host_of_their_own(topology):
     """Where namespaces can be made, every worker runs in the worker host's network namespace
-    and talks to Redis and PostgreSQL across its link (the first test above ran through it)."""
+    and talks to Redis and PostgreSQL across its link (the first test above ran through it).
+    In compose mode every worker container is a host of its own on the compose network,
+    connected to the redis and postgres containers' addresses."""
+    if topology.mode == "compose":
+        root = os.readlink("/proc/self/ns/net")
+        redis, pg = _container_ip(topology, "redis"), _container_ip(topology, "postgres")
+        workers = [c for c in topology._containers("worker") if c.alive]
+        assert len(workers) >= 2
+        for c in workers:
+            assert os.readlink(f"/proc/{c.pid}/ns/net") != root
+            links = subprocess.run(["nsenter", "-t", str(c.pid), "-n", "ss", "-tnH", "state",
+                                    "established"], capture_output=True, text=True,
+                                   check=True).stdout
+            peers = {ln.split()[-1] for ln in links.splitlines()}
+            assert f"{redis}:6379" in peers, links
+        probe = ("import os, psycopg; c = psycopg.connect(os.environ['CMRT_DATABASE_URL']"
+                 ".replace('+psycopg', ''), connect_timeout=10); "
+                 "print(c.execute('select inet_client_addr()').fetchone()[0])")
+        seen = topology.compose("exec", "-T", "--index", "1", "worker", "python", "-c",
+                                probe).strip()
+        ips = [c.inspect("{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}")
+               for c in workers]
+        assert seen in ips, (seen, ips, pg)  # the database sees the worker container
+        return
     host = getattr(topology, "worker_host", None)
     if host is None:
         pytest.skip(f"workers on the test host: {topology.worker_link_unavailable}")
@@ -112,6 +141,8 @@ def _check_complete(api, job_id, what):
     gens = api.get(f"/jobs/{job_id}/generations").json()["generations"]
     assert [g["iteration"] for g in gens] == list(range(len(gens)))
     assert job["cmrt_id"] is not None
+    # the fault changed when and where candidates ran, not what the job computed
+    assert same_as_uninterrupted(api, job_id), f"{what}: a result unlike the uninterrupted run"
     return job, book
 
 

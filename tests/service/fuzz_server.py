@@ -1,10 +1,14 @@
-"""`python tests/service/fuzz_server.py DATA_DIR PORT`: the API for the schemathesis run.
+"""`python tests/service/fuzz_server.py DATA_DIR PORT [drivers]`: the API for the schemathesis
+run.
 
 On a fresh SQLite database in DATA_DIR it first fills the library the real way, through the
 HTTP API (three bend jobs optimised against the synthetic objective, and a PCA basis; with the
 bearer token of CMRT_API_TOKEN when the environment sets one), prints
-the ids as one JSON line, then serves the app under uvicorn on 127.0.0.1:PORT with the job
-drivers off, so the jobs the fuzzer submits are validated and stored but start no simulation.
+the ids as one JSON line, then serves the app under uvicorn on 127.0.0.1:PORT. By default the
+job drivers are off, so the jobs the fuzzer submits are validated and stored but start no
+simulation; with `drivers` they are on, as in production: every job the fuzzer gets accepted is
+optimised for real (ODE in the local process pool, one worker) under a job ceiling of
+`DRIVEN_JOB_SIM_SECONDS` simulated seconds, while the fuzzer goes on.
 """
 
 from __future__ import annotations
@@ -55,17 +59,26 @@ def seed_library(settings: Settings) -> dict[str, str]:
     return {"job_id": jobs[0], "cmrt_id": cmrt, "basis_id": basis}
 
 
-def main(data_dir: str, port: int) -> None:
+#: The job ceiling (simulated s) with the drivers on: the example job (700 evaluations of a 2.6 s
+#: clip) fits, a fuzzed job asking for 100,000 evaluations does not.
+DRIVEN_JOB_SIM_SECONDS = 2500.0
+
+
+def main(data_dir: str, port: int, drivers: bool = False) -> None:
     settings = Settings(data_dir=Path(data_dir), database_url=f"sqlite:///{data_dir}/fuzz.db",
                         workers=1)
     ids = seed_library(settings)
-    app = create_app(settings, run_drivers=False)
-    # a job left queued (no driver runs here), for the cancel operation
+    if drivers:
+        settings = settings.model_copy(update={"max_job_sim_seconds": DRIVEN_JOB_SIM_SECONDS})
+    app = create_app(settings, run_drivers=drivers)
+    # a job for the cancel operation: left queued (drivers off), or one that runs for minutes
+    # (700 evaluations, no early-stopping threshold) when the drivers are on
+    job = {**JOB_EXAMPLE, "optimize": {"max_evaluations": 700}}
     ids["queued_job_id"] = TestClient(app, headers=_auth(settings)).post(
-        "/jobs", json=JOB_EXAMPLE).json()["id"]
+        "/jobs", json=job).json()["id"]
     print(json.dumps(ids), flush=True)
     uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], int(sys.argv[2]))
+    main(sys.argv[1], int(sys.argv[2]), drivers=sys.argv[3:] == ["drivers"])

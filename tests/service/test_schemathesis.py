@@ -8,6 +8,10 @@ response that breaks the document. It runs twice: on the open API, and on the AP
 CMRT_API_TOKEN (reads closed too) with the token sent, where schemathesis' `ignored_auth` check
 also sends each operation without it and expects a 401. The figures are printed (pytest -s)
 and written to `schemathesis-figures.json` in the test's temporary folder.
+
+`FUZZ_DRIVERS=on` serves the app with its job drivers on (every accepted job optimised for real
+while the fuzzer goes on), `FUZZ_MAX_EXAMPLES=N` sets the cases per operation and phase:
+`bench/fuzz_api.sh` runs both ways at a larger size.
 """
 
 from __future__ import annotations
@@ -28,9 +32,11 @@ import pytest
 
 HERE = Path(__file__).parent
 #: Test cases per operation and phase: bounds the run (about 40 s on this machine).
-MAX_EXAMPLES = 100
+MAX_EXAMPLES = int(os.environ.get("FUZZ_MAX_EXAMPLES", "100"))
+#: The job drivers of the served app: off (jobs stored, nothing started) unless FUZZ_DRIVERS=on.
+DRIVERS = os.environ.get("FUZZ_DRIVERS", "off") == "on"
 #: The run is killed (and the test fails) past this.
-MAX_SECONDS = 400
+MAX_SECONDS = 400 * max(1, MAX_EXAMPLES // 100) * (3 if DRIVERS else 1)
 
 
 def _free_port() -> int:
@@ -65,7 +71,8 @@ def served(request, tmp_path):
         env["CMRT_API_TOKEN"] = TOKEN
         extra = ["-H", f"Authorization: Bearer {TOKEN}"]
     proc = subprocess.Popen(
-        [sys.executable, str(HERE / "fuzz_server.py"), str(tmp_path), str(port)],
+        [sys.executable, str(HERE / "fuzz_server.py"), str(tmp_path), str(port),
+         *(["drivers"] if DRIVERS else [])],
         stdout=subprocess.PIPE, stderr=log, text=True, env=env,
         start_new_session=True)  # its own process group: every process it forks ends with it
     try:
@@ -113,6 +120,8 @@ def test_schemathesis_all_checks(served, tmp_path):
         "operations": r["operations"],
         "test_cases": r["test_cases"],
         "phases": {k: v["status"] for k, v in r["phases"].items()},
+        "drivers": "on" if DRIVERS else "off",
+        "max_examples": MAX_EXAMPLES,
         "failures": len(r["failures"]),
         "errors": len(r["errors"]),
         "running_time_s": round(r["running_time"], 1),
