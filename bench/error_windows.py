@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from sim.clip import evaluate  # noqa: E402
+from sim.rollout import evaluate  # noqa: E402
 from sim.spec import load_spec  # noqa: E402
 
 EARLY_DECAY_S = 0.4  # s, the decay's first part, where the bend's transient settles

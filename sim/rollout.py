@@ -34,7 +34,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sim.character import ROOT_DOF, Character
+from sim.character import ROOT_DOF
 from sim.controllers import FallController
 from sim.controllers.base import Cmrt, Controller, Observation, stance_terms
 from sim.controllers.registry import ControllerContext, build_controller
@@ -50,6 +50,7 @@ from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
 from sim.recording import FRAME_EVERY, Recorder
 from sim.spec import TaskSpec
+from sim.standing import standing_state
 from sim.trajectory import PoseTrajectory, ease
 
 FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
@@ -88,57 +89,6 @@ class ReleasableCmrt:
             return self.cmrt(t)
         w = 1.0 - ease((t - at) / self.ramp)[0] if self.ramp > 0.0 else 0.0
         return (w * self._held[0], w * self._held[1])
-
-
-def standing_state(ch: Character, arrays: ModelArrays,
-                   pose: dict[int, float] | None = None) -> np.ndarray:
-    """q of the standing pose: feet flat with the right heel where the zero pose has it; with
-    `balance_standing`, the body leans at the ankles so the CM is over the support centre.
-    `pose` ({hinge index: rad} relative to the standing pose, e.g. arms held out) changes the
-    pose before the lean is found."""
-    hinge = ch.standing_offsets.copy()
-    for j, off in (pose or {}).items():
-        hinge[j] += off
-    feet_chains = []
-    for f in ch.feet:
-        chain, b = [], int(f)
-        while b > 0:
-            chain.append(b - 1)
-            b = int(ch.parent[b])
-        feet_chains.append(chain)  # the foot's own hinge first
-
-    def place(phi: float) -> tuple[np.ndarray, float]:
-        q = np.zeros(ch.ndof)
-        q[2] = phi
-        h = hinge.copy()
-        for chain in feet_chains:
-            own, others = chain[0], chain[1:]
-            h[own] = -(phi + sum(h[j] for j in others))  # foot flat on the ground
-        q[ROOT_DOF:] = h
-        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
-        f0 = int(ch.feet[0])
-        heel = p[f0] + _rot(alpha[f0], arrays.heel_local[0])
-        q[:2] += ch.heel0[0] - heel
-        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
-        cx = float((ch.mass * p[:, 0]).sum() / ch.mass.sum())
-        centre = 0.5 * (ch.heel0[:, 0].min() + ch.toe0[:, 0].max())
-        return q, cx - centre
-
-    if not ch.balance_standing:
-        return place(0.0)[0]
-    a, b = 0.0, -0.05
-    fa, fb = place(a)[1], place(b)[1]
-    for _ in range(30):  # secant on the lean angle
-        if abs(fb) < 1e-10 or fb == fa:
-            break
-        a, b, fa = b, b - fb * (b - a) / (fb - fa), fb
-        fb = place(b)[1]
-    return place(b)[0]
-
-
-def _rot(a: float, v: np.ndarray) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
 def fall_penalty(fall_time: float, length: float, steps: int, support_length: float) -> float:
@@ -182,11 +132,6 @@ class Rollout:
                                                FRICTION_MU, self.q0.copy()))
         self.fall_controller = FallController(ch, DT)
         self.steps = int(round(spec.clip.length / DT))
-
-    @property
-    def world(self) -> Physics:
-        """The physics (the name this attribute had before the reshape)."""
-        return self.physics
 
     def run(self, cmrt: Cmrt | None = None, traces: bool = False,
             stop_above: Callable[[], float] | None = None) -> Evaluation:

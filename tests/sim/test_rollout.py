@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import yaml
 
-from sim.clip import Simulator
 from sim.physics import DT
 from sim.rollout import Rollout, evaluate, fall_penalty
 from sim.spec import GainSchedule, TaskSpec, load_spec, parse_spec
@@ -299,7 +298,7 @@ def test_run_twice_on_one_simulator_is_identical(push_sim, push_forward):
 
 def test_same_spec_same_objective_in_process_and_in_fresh_process(push_forward):
     spec = load_spec(EXAMPLES / "push.yaml")
-    fresh = evaluate(spec)  # a new Simulator in this process
+    fresh = evaluate(spec)  # a new Rollout in this process
     _same(fresh, push_forward)
     # A separate interpreter (spawn, not fork: nothing inherited from this process).
     ctx = multiprocessing.get_context("spawn")
@@ -348,8 +347,3 @@ def test_scaled_character_stands():
     assert not ev.fell, ev.fall_reason
     assert abs(ev.traces.cm[-1, 0] - ev.traces.support[-1]) < 0.01
     assert np.nanmax(np.abs(ev.traces.error)) <= sim.support_length / 4
-
-
-def test_simulator_is_the_rollout():
-    """Callers written before the reshape (optim, worker, cli) use sim.clip.Simulator."""
-    assert Simulator is Rollout
