@@ -18,19 +18,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from sim.character import ROOT_DOF  # noqa: E402
-from sim.dynamics import inverse_dynamics, step_model  # noqa: E402
-from sim.physics import DT  # noqa: E402
-from sim.rollout import Rollout  # noqa: E402
-from sim.spec import parse_spec  # noqa: E402
+from sim.character import ROOT_DOF
+from sim.dynamics import inverse_dynamics, step_model
+from sim.physics import DT
+from sim.rollout import Rollout
+from sim.spec import parse_spec
 
 
 def quiet_spec(seconds: float):

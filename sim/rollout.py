@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -48,6 +48,7 @@ from sim.dynamics import (
 )
 from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
+from sim.props import PropDef
 from sim.recording import FRAME_EVERY, Recorder
 from sim.spec import TaskSpec
 from sim.standing import standing_state
@@ -106,16 +107,20 @@ def fall_direction(c: np.ndarray, cd: np.ndarray, support_centre: float) -> str:
 
 
 class Rollout:
-    """A task spec's physics, task and controllers, built once and reset for each run."""
+    """A task spec's physics, task and controllers, built once and reset for each run.
 
-    def __init__(self, spec: TaskSpec):
+    `extra_props`: props placed in the world beside the task's (the controller and the task do
+    not know them; a measurement's load, e.g. the cost per prop in bench/prop_scaling.py)."""
+
+    def __init__(self, spec: TaskSpec, extra_props: Sequence[PropDef] = ()):
         self.spec = spec
         ch = spec.load_character()
         self.character = ch
         self.support_length = ch.support_length
         self.arrays = ModelArrays.from_character(ch)
         self.task = spec.task.build(spec, ch)
-        self.physics = Physics(ch, self.arrays, self.task.props)
+        props = self.task.props
+        self.physics = Physics(ch, self.arrays, (*props, *extra_props) if extra_props else props)
         self.q0 = standing_state(ch, self.arrays, self.task.initial_pose)
         # Start with the ground contacts already loaded: sink the body by the static
         # penetration of a soft contact, depth = (m g / contacts) / k with the contact

@@ -347,3 +347,25 @@ def test_scaled_character_stands():
     assert not ev.fell, ev.fall_reason
     assert abs(ev.traces.cm[-1, 0] - ev.traces.support[-1]) < 0.01
     assert np.nanmax(np.abs(ev.traces.error)) <= sim.support_length / 4
+
+
+def test_extra_props_join_the_world_and_leave_the_clip_standing():
+    """`Rollout(spec, extra_props=...)`: the props are in the physics beside the task's (none
+    for a quiet stance), resting clear of the character; without them the world is the
+    task's."""
+    from sim.props import PropDef
+
+    spec = parse_spec({"name": "props", "task": {"type": "quiet_stance"},
+                       "clip": {"preparation": 0.0, "duration": 0.3, "decay": 0.0}})
+    box = PropDef("box0", "box", (0.3, 0.2), 10.0, (0.8, 0.1))
+    plain, loaded = Rollout(spec), Rollout(spec, extra_props=[box])
+    try:
+        assert not plain.physics.props and "box0" not in plain.physics.pose_names()
+        assert "box0" in loaded.physics.pose_names()
+        start = loaded.physics.prop("box0").pose()
+        ev = loaded.run()
+        assert not ev.fell
+        assert loaded.physics.prop("box0").pose()[0] == pytest.approx(start[0], abs=1e-3)
+    finally:
+        plain.close()
+        loaded.close()
