@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from sim.character import ROOT_DOF, Character
+from sim.character import ROOT_DOF
 from sim.controllers import FallController
 from sim.controllers.base import Cmrt, Controller, Observation, stance_terms
 from sim.controllers.registry import ControllerContext, build_controller
@@ -48,8 +48,10 @@ from sim.dynamics import (
 )
 from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
+from sim.props import PropDef
 from sim.recording import FRAME_EVERY, Recorder
 from sim.spec import TaskSpec
+from sim.standing import standing_state
 from sim.trajectory import PoseTrajectory, ease
 
 FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
@@ -90,57 +92,6 @@ class ReleasableCmrt:
         return (w * self._held[0], w * self._held[1])
 
 
-def standing_state(ch: Character, arrays: ModelArrays,
-                   pose: dict[int, float] | None = None) -> np.ndarray:
-    """q of the standing pose: feet flat with the right heel where the zero pose has it; with
-    `balance_standing`, the body leans at the ankles so the CM is over the support centre.
-    `pose` ({hinge index: rad} relative to the standing pose, e.g. arms held out) changes the
-    pose before the lean is found."""
-    hinge = ch.standing_offsets.copy()
-    for j, off in (pose or {}).items():
-        hinge[j] += off
-    feet_chains = []
-    for f in ch.feet:
-        chain, b = [], int(f)
-        while b > 0:
-            chain.append(b - 1)
-            b = int(ch.parent[b])
-        feet_chains.append(chain)  # the foot's own hinge first
-
-    def place(phi: float) -> tuple[np.ndarray, float]:
-        q = np.zeros(ch.ndof)
-        q[2] = phi
-        h = hinge.copy()
-        for chain in feet_chains:
-            own, others = chain[0], chain[1:]
-            h[own] = -(phi + sum(h[j] for j in others))  # foot flat on the ground
-        q[ROOT_DOF:] = h
-        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
-        f0 = int(ch.feet[0])
-        heel = p[f0] + _rot(alpha[f0], arrays.heel_local[0])
-        q[:2] += ch.heel0[0] - heel
-        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
-        cx = float((ch.mass * p[:, 0]).sum() / ch.mass.sum())
-        centre = 0.5 * (ch.heel0[:, 0].min() + ch.toe0[:, 0].max())
-        return q, cx - centre
-
-    if not ch.balance_standing:
-        return place(0.0)[0]
-    a, b = 0.0, -0.05
-    fa, fb = place(a)[1], place(b)[1]
-    for _ in range(30):  # secant on the lean angle
-        if abs(fb) < 1e-10 or fb == fa:
-            break
-        a, b, fa = b, b - fb * (b - a) / (fb - fa), fb
-        fb = place(b)[1]
-    return place(b)[0]
-
-
-def _rot(a: float, v: np.ndarray) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
-
-
 def fall_penalty(fall_time: float, length: float, steps: int, support_length: float) -> float:
     """Objective of a clip that fell at `fall_time` s of `length`: in (F0, 2 F0], F0 being an
     upper bound of any non-fall objective, sqrt(steps) x support length."""
@@ -156,16 +107,20 @@ def fall_direction(c: np.ndarray, cd: np.ndarray, support_centre: float) -> str:
 
 
 class Rollout:
-    """A task spec's physics, task and controllers, built once and reset for each run."""
+    """A task spec's physics, task and controllers, built once and reset for each run.
 
-    def __init__(self, spec: TaskSpec):
+    `extra_props`: props placed in the world beside the task's (the controller and the task do
+    not know them; a measurement's load, e.g. the cost per prop in bench/prop_scaling.py)."""
+
+    def __init__(self, spec: TaskSpec, extra_props: Sequence[PropDef] = ()):
         self.spec = spec
         ch = spec.load_character()
         self.character = ch
         self.support_length = ch.support_length
         self.arrays = ModelArrays.from_character(ch)
         self.task = spec.task.build(spec, ch)
-        self.physics = Physics(ch, self.arrays, self.task.props)
+        props = self.task.props
+        self.physics = Physics(ch, self.arrays, (*props, *extra_props) if extra_props else props)
         self.q0 = standing_state(ch, self.arrays, self.task.initial_pose)
         # Start with the ground contacts already loaded: sink the body by the static
         # penetration of a soft contact, depth = (m g / contacts) / k with the contact
@@ -183,11 +138,6 @@ class Rollout:
         self.fall_controller = FallController(ch, DT)
         self.steps = int(round(spec.clip.length / DT))
 
-    @property
-    def world(self) -> Physics:
-        """The physics (the name this attribute had before the reshape)."""
-        return self.physics
-
     def run(self, cmrt: Cmrt | None = None, traces: bool = False,
             stop_above: Callable[[], float] | None = None) -> Evaluation:
         """Simulate the clip with the CMRT (None: no anticipation) and score it.
@@ -197,173 +147,254 @@ class Rollout:
         returns that lower bound as its objective with `cut=True` (`optim.rankcut` uses it for
         the candidate that already ranks last). Every other run is unchanged bit for bit."""
         cpu0 = time.process_time()
-        ch, a, phys, task = self.character, self.arrays, self.physics, self.task
-        n_steps = self.steps
-        phys.reset(self.q0)
+        clip = _Clip(self, cmrt, traces)
+        for k in range(self.steps):
+            t = k * DT
+            if (stop_above is not None and k % CUT_CHECK_STEPS == 0 and not clip.lost
+                    and clip.lower_bound() > stop_above()):
+                return clip.cut(cpu0)
+            clip.observe(k, t)
+            if clip.fell_physically(t):
+                break
+            tau = clip.act(t)
+            if clip.loses_balance(t):
+                if not traces:
+                    break
+                tau = clip.hand_over(t)
+            clip.frame(k, t)
+            fy, cop = clip.step(tau, t)
+            clip.measure(k, t, fy, cop)
+        return clip.result(cpu0)
+
+    def close(self) -> None:
+        self.physics.close()
+
+
+class _Clip:
+    """One run of a `Rollout`: its state and the loop's pieces, in the order the loop calls
+    them each step: `observe` (state, model terms, the stance feet's terms), `fell_physically`
+    (the fall rules), `act` (the active controller's torques), `loses_balance` / `hand_over`
+    (the controller's own fall and the fall controller), `frame` (replay), `step` (torques,
+    task events, contacts, ODE step, contact feedback), `measure` (CP error and traces); then
+    `result` or `cut`."""
+
+    __slots__ = (
+        "rollout", "phys", "task", "events", "balance", "active", "releasable", "rec",
+        "foot_of_point", "n_feet", "cm_floor", "sq_sum", "max_e", "contact_steps", "fall_time",
+        "fall_reason", "direction", "lost", "c_ref", "k_done", "f0", "pargs", "M", "h", "c",
+        "cd", "A_L", "A_H", "Js", "pts", "sole_x", "held", "held_qdd", "tau_held", "neg_limit",
+        "limit", "lo", "hi", "s", "clearance", "code", "top", "stance", "obs_terms",
+    )
+
+    def __init__(self, rollout: Rollout, cmrt: Cmrt | None, traces: bool):
+        self.rollout = rollout
+        ch, phys, task = rollout.character, rollout.physics, rollout.task
+        self.phys, self.task = phys, task
+        phys.reset(rollout.q0)
         task.reset(phys)
-        balance = self.controller
-        active: Controller = balance
+        self.balance = self.active = rollout.controller
         # Only a task that can report a failed interaction gets the wrapper: every other clip
         # hands the controller the CMRT itself.
-        releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
-                      and task.reports_failure else None)
-        active.reset(None, releasable or cmrt)
-        events = task.events
-        foot_of_point = np.repeat(ch.feet, 2).tolist()
-        n_feet = len(ch.feet)
-        cm_floor = FALL_CM_FRACTION * self.cm0[1]
-        rec = Recorder(n_steps, phys) if traces else None
-        sq_sum = 0.0
-        max_e = 0.0
-        contact_steps = 0
-        fall_time = None
-        fall_reason = None
-        direction = None
-        lost = False
-        c_ref = (self.cm0[0], 0.0)
-        k_done = 0
+        self.releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
+                           and task.reports_failure else None)
+        self.balance.reset(None, self.releasable or cmrt)
+        self.events = task.events
+        self.foot_of_point = np.repeat(ch.feet, 2).tolist()
+        self.n_feet = len(ch.feet)
+        self.cm_floor = FALL_CM_FRACTION * rollout.cm0[1]
+        self.rec = Recorder(rollout.steps, phys) if traces else None
+        self.sq_sum = 0.0
+        self.max_e = 0.0
+        self.contact_steps = 0
+        self.fall_time: float | None = None
+        self.fall_reason: str | None = None
+        self.direction: str | None = None
+        self.lost = False
+        self.c_ref = (rollout.cm0[0], 0.0)
+        self.k_done = 0
+        # Lower bound of the objective at any point of the clip: the running error norm grows
+        # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
+        # fall scores at least F0 = sqrt(steps) x support length.
+        self.f0 = math.sqrt(rollout.steps) * rollout.support_length
         # The model terms are written into these arrays every step (step_model_packed): the
         # Observation's arrays hold this step's values only, as q and qd (read_state) do.
         # (`PackedModel`: views of one buffer, the constants in three arrays, so that the one
         # compiled call per step unboxes 6 arguments, not 24.)
-        pack = PackedModel(a, ch.ndof)
-        M, h, c, cd, A_L, A_H, Js, pts, sole_x = pack.arrays()
-        pargs = pack.args()
-        read_state, diverged = phys.read_state, phys.diverged
-        apply_torques, make_contacts, world_step = phys.apply_torques, phys.make_contacts, phys.step
-        contact_forces, clear_contacts = phys.contact_forces, phys.clear_contacts
-        has_props = bool(phys.props)
+        pack = PackedModel(rollout.arrays, ch.ndof)
+        (self.M, self.h, self.c, self.cd, self.A_L, self.A_H, self.Js, self.pts,
+         self.sole_x) = pack.arrays()
+        self.pargs = pack.args()
         # Steps between QP solves: the model terms, the held accelerations' inverse dynamics
         # and the torque clamp in one compiled call (`step_model_held`), when the balance
-        # controller offers it; the same torques and judgement as its `act`, bit for bit.
-        held_step = getattr(balance, "held_torque_step", None)
-        held_act = getattr(balance, "held_act", None)
-        neg_limit, limit = phys.torque_bounds
-        tau_held = np.empty(len(limit))
-        add_clamped = phys.add_clamped_torques
-        mu = getattr(balance, "mu", 0.0)
-        # Lower bound of the objective at any point of the clip: the running error norm grows
-        # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
-        # fall scores at least F0 = sqrt(steps) x support length.
-        f0 = math.sqrt(n_steps) * self.support_length
-        cut = False
-        for k in range(n_steps):
-            t = k * DT
-            if stop_above is not None and k % CUT_CHECK_STEPS == 0 and not lost:
-                bound = min(math.sqrt(sq_sum), f0)
-                if bound > stop_above():
-                    cut = True
-                    break
-            q, qd = read_state()
-            if k % DIVERGENCE_CHECK_STEPS == 0:
-                why = diverged(qd)
-                if why is not None:
-                    raise DivergenceError(f"{self.spec.name}: the simulation diverged at "
-                                          f"t = {t:.3f} s ({why})")
-            held = held_step is not None and active is balance and held_step()
-            if held:
-                lo, hi, clearance, code, _cop, top = step_model_held(
-                    q, qd, *pargs, balance.qdd, mu, neg_limit, limit, tau_held)
-                stance = None
-                obs_Js, obs_pts, obs_sole = Js, pts, sole_x
+        # controller offers them (`Controller.held_torque_step`); the same torques and
+        # judgement as its `act`, bit for bit.
+        self.neg_limit, self.limit = phys.torque_bounds
+        self.tau_held = np.empty(len(self.limit))
+        self.held = False
+
+    def lower_bound(self) -> float:
+        """A lower bound of this clip's objective so far (see `Rollout.run`'s stop_above)."""
+        return min(math.sqrt(self.sq_sum), self.f0)
+
+    def observe(self, k: int, t: float) -> None:
+        """Read the state, check it for divergence, and compute the model terms (with the held
+        step's torques when the balance controller holds this step) and the stance terms."""
+        q, qd = self.phys.read_state()
+        if k % DIVERGENCE_CHECK_STEPS == 0:
+            why = self.phys.diverged(qd)
+            if why is not None:
+                raise DivergenceError(f"{self.rollout.spec.name}: the simulation diverged at "
+                                      f"t = {t:.3f} s ({why})")
+        active, balance = self.active, self.balance
+        held = self.held = active is balance and balance.held_torque_step()
+        if held:
+            lo, hi, self.clearance, self.code, _cop, self.top = step_model_held(
+                q, qd, *self.pargs, balance.qdd, balance.mu, self.neg_limit, self.limit,
+                self.tau_held)
+            stance = None
+            terms = (self.Js, self.pts, self.sole_x)
+        else:
+            lo, hi, self.clearance = step_model_packed(q, qd, *self.pargs)
+            stance = active.stance
+            if stance is not None:
+                # New arrays for the stance feet only; the full ones stay the model's.
+                js, pts, sole, (lo, hi) = stance_terms(self.Js, self.pts, self.sole_x, (lo, hi),
+                                                       stance, self.n_feet)
+                terms = (js, pts, sole)
             else:
-                lo, hi, clearance = step_model_packed(q, qd, *pargs)
-                stance = getattr(active, "stance", None)
-                if stance is not None:
-                    # New arrays for the stance feet only; the full ones stay the model's.
-                    obs_Js, obs_pts, obs_sole, (lo, hi) = stance_terms(Js, pts, sole_x,
-                                                                       (lo, hi), stance, n_feet)
-                else:
-                    obs_Js, obs_pts, obs_sole = Js, pts, sole_x
-            s = 0.5 * (lo + hi)
-            physical = None
-            if clearance < 0.0:
-                physical = "body_contact"
-            elif c[1] < cm_floor:
-                physical = "cm_drop"
-            if physical is not None:
-                if fall_time is None:
-                    fall_time, fall_reason = t, physical
-                    direction = fall_direction(c, cd, s)
-                break
-            if held:
-                held_act(code, top)
-                tau = None  # tau_held, clamped
-            else:
-                tau = active.act(Observation(q, qd, M, h, c, cd, A_L, A_H, obs_Js, obs_pts,
-                                             obs_sole, (lo, hi), stance), t)
-            if not lost:
-                c_ref = balance.c_ref
-                if active.lost is not None:
-                    lost = True
-                    fall_time, fall_reason = t, f"balance_lost:{active.lost}"
-                    direction = fall_direction(c, cd, s)
-                    if rec is None:
-                        break
-                    obs = Observation(q, qd, M, h, c, cd, A_L, A_H, obs_Js, obs_pts, obs_sole,
-                                      (lo, hi), stance)
-                    active = self.fall_controller
-                    active.reset(obs)
-                    tau = active.act(obs, t)
-            if rec is not None and k % FRAME_EVERY == 0:
-                rec.frame(t, c, c_ref, (lo, hi))
-            if tau is None:
-                add_clamped(tau_held.tolist())
-            else:
-                apply_torques(tau)
-            if events:
-                task.before_step(phys, t)
-            make_contacts(pts, foot_of_point)
-            if has_props:
-                phys.collide_props()
-            world_step()
-            fy, _fx, cop = contact_forces()
-            if events:
-                task.after_step(phys, t + DT)
-                if (releasable is not None and releasable.released_at is None and not lost
-                        and task.interaction_failed(phys, t + DT)):
-                    releasable.release(t + DT)
-            clear_contacts()
-            k_done = k + 1
-            e = math.nan
-            if fy > MIN_CONTACT_FORCE and not lost:
-                e = cop - s
-                sq_sum += e * e
-                if abs(e) > max_e:  # max(max_e, |e|) without the builtin's call
-                    max_e = abs(e)
-                contact_steps += 1
-            if rec is not None:
-                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c, c_ref,
-                          fy)
+                terms = (self.Js, self.pts, self.sole_x)
+        self.lo, self.hi, self.stance, self.obs_terms = lo, hi, stance, (q, qd, *terms)
+        self.s = 0.5 * (lo + hi)
+
+    def observation(self) -> Observation:
+        q, qd, js, pts, sole = self.obs_terms
+        return Observation(q, qd, self.M, self.h, self.c, self.cd, self.A_L, self.A_H, js, pts,
+                           sole, (self.lo, self.hi), self.stance)
+
+    def fell_physically(self, t: float) -> bool:
+        """The fall rules of the body itself: a body other than a foot on the ground, or the
+        CM below FALL_CM_FRACTION of its standing height (the clip ends)."""
+        if self.clearance < 0.0:
+            physical = "body_contact"
+        elif self.c[1] < self.cm_floor:
+            physical = "cm_drop"
+        else:
+            return False
+        if self.fall_time is None:
+            self._fall(t, physical)
+        return True
+
+    def _fall(self, t: float, reason: str) -> None:
+        self.fall_time, self.fall_reason = t, reason
+        self.direction = fall_direction(self.c, self.cd, self.s)
+
+    def act(self, t: float) -> np.ndarray | None:
+        """The active controller's torques; None on a held step (they are in `tau_held`,
+        clamped)."""
+        if self.held:
+            self.balance.held_act(self.code, self.top)
+            return None
+        return self.active.act(self.observation(), t)
+
+    def loses_balance(self, t: float) -> bool:
+        """Whether the balance controller has just lost balance (the fall is recorded)."""
+        if self.lost:
+            return False
+        self.c_ref = self.balance.c_ref
+        if self.active.lost is None:
+            return False
+        self.lost = True
+        self._fall(t, f"balance_lost:{self.active.lost}")
+        return True
+
+    def hand_over(self, t: float) -> np.ndarray:
+        """The fall controller takes over from this step (traces on: the fall is shown)."""
+        obs = self.observation()
+        self.active = self.rollout.fall_controller
+        self.active.reset(obs)
+        return self.active.act(obs, t)
+
+    def frame(self, k: int, t: float) -> None:
+        if self.rec is not None and k % FRAME_EVERY == 0:
+            self.rec.frame(t, self.c, self.c_ref, (self.lo, self.hi))
+
+    def step(self, tau: np.ndarray | None, t: float) -> tuple[float, float]:
+        """Apply the torques, run the task's events, step the world from t to t + DT; the
+        feet's total normal force (N) and CP x (m) of the step."""
+        phys, task = self.phys, self.task
+        if tau is None:
+            phys.add_clamped_torques(self.tau_held.tolist())
+        else:
+            phys.apply_torques(tau)
+        if self.events:
+            task.before_step(phys, t)
+        phys.make_contacts(self.pts, self.foot_of_point)
+        if phys.props:
+            phys.collide_props()
+        phys.step()
+        fy, _fx, cop = phys.contact_forces()
+        if self.events:
+            task.after_step(phys, t + DT)
+            rel = self.releasable
+            if (rel is not None and rel.released_at is None and not self.lost
+                    and task.interaction_failed(phys, t + DT)):
+                rel.release(t + DT)
         phys.clear_contacts()
-        error_norm = math.sqrt(sq_sum)
-        if cut:
-            return Evaluation(
-                objective=min(error_norm, f0), fell=False, fall_time=None, fall_reason=None,
-                error_norm=error_norm, max_abs_error=max_e, sim_seconds=k_done * DT,
-                cpu_seconds=time.process_time() - cpu0, steps=k_done,
-                contact_steps=contact_steps, cut=True,
-            )
+        return fy, cop
+
+    def measure(self, k: int, t: float, fy: float, cop: float) -> None:
+        """The CP error of step k (NaN without ground contact or after balance was lost) into
+        the objective's sums and the traces."""
+        self.k_done = k + 1
+        e = math.nan
+        s = self.s
+        if fy > MIN_CONTACT_FORCE and not self.lost:
+            e = cop - s
+            self.sq_sum += e * e
+            if abs(e) > self.max_e:  # max(max_e, |e|) without the builtin's call
+                self.max_e = abs(e)
+            self.contact_steps += 1
+        if self.rec is not None:
+            self.rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, self.c,
+                           self.c_ref, fy)
+
+    def cut(self, cpu0: float) -> Evaluation:
+        """The result of a run stopped by `stop_above`: its objective's lower bound."""
+        self.phys.clear_contacts()
+        error_norm = math.sqrt(self.sq_sum)
+        k_done = self.k_done
+        return Evaluation(
+            objective=min(error_norm, self.f0), fell=False, fall_time=None, fall_reason=None,
+            error_norm=error_norm, max_abs_error=self.max_e, sim_seconds=k_done * DT,
+            cpu_seconds=time.process_time() - cpu0, steps=k_done,
+            contact_steps=self.contact_steps, cut=True,
+        )
+
+    def result(self, cpu0: float) -> Evaluation:
+        """The scored clip: the CP error's 2-norm, or the fall penalty, plus the task's."""
+        phys, task, r = self.phys, self.task, self.rollout
+        phys.clear_contacts()
+        error_norm = math.sqrt(self.sq_sum)
+        fall_time = self.fall_time
         fell = fall_time is not None
-        objective = (fall_penalty(fall_time, self.spec.clip.length, n_steps, self.support_length)
-                     if fell else error_norm)
-        penalty = task.penalty(phys, math.sqrt(n_steps) * self.support_length)
+        objective = (fall_penalty(fall_time, r.spec.clip.length, r.steps, r.support_length)
+                     if fall_time is not None else error_norm)
+        penalty = task.penalty(phys, math.sqrt(r.steps) * r.support_length)
         if penalty:
             objective += penalty
         out_traces = out_frames = None
-        if rec is not None:
-            out_traces, out_frames = rec.result(k_done)
+        if self.rec is not None:
+            out_traces, out_frames = self.rec.result(self.k_done)
+        k_done = self.k_done
         return Evaluation(
-            objective=objective, fell=fell, fall_time=fall_time, fall_reason=fall_reason,
-            error_norm=error_norm, max_abs_error=max_e, sim_seconds=k_done * DT,
-            cpu_seconds=time.process_time() - cpu0, steps=k_done, contact_steps=contact_steps,
-            fall_direction=direction, task_success=task.success(phys), task_penalty=penalty,
-            cmrt_released_at=None if releasable is None else releasable.released_at,
+            objective=objective, fell=fell, fall_time=fall_time, fall_reason=self.fall_reason,
+            error_norm=error_norm, max_abs_error=self.max_e, sim_seconds=k_done * DT,
+            cpu_seconds=time.process_time() - cpu0, steps=k_done,
+            contact_steps=self.contact_steps, fall_direction=self.direction,
+            task_success=task.success(phys), task_penalty=penalty,
+            cmrt_released_at=None if self.releasable is None else self.releasable.released_at,
             traces=out_traces, frames=out_frames,
         )
-
-    def close(self) -> None:
-        self.physics.close()
 
 
 def evaluate(spec: TaskSpec, cmrt: Cmrt | None = None, traces: bool = False) -> Evaluation:
