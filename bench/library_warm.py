@@ -20,7 +20,9 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,13 +38,39 @@ from optim.family import (
     reference_run_id,
 )
 from optim.family_run import load_finished
+from optim.result import OptimizationResult
 from optim.run import optimize
 from worker.library import LIBRARY_WARM_SIGMA0
 
 
+@dataclass
+class _Run:
+    """What the comparison reads of a finished run: its objective, evaluations and history."""
+
+    objective: float
+    evaluations: int
+    history: list[dict[str, float]]
+
+
+def _from_report(fs: Any, report: dict[str, Any]) -> tuple[dict[float, Any], dict[str, _Run]]:
+    """The members (as results, for the interpolation) and every run's convergence curve, from
+    a family report alone."""
+    members = {}
+    for m in report["members"]:
+        spec = member_spec(fs, m["value"])
+        members[float(m["value"])] = OptimizationResult.build(
+            spec, m["params"], objective=m["objective"],
+            baseline_objective=m["baseline_objective"])
+    colds = {r["id"]: _Run(r["objective"], r["evaluations"],
+                           [{"evaluations": e, "best_so_far": b} for e, b in r["curve"]])
+             for r in report["runs"]}
+    return members, colds
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("family", help="a `cmrt family run` report (F.json, with F.runs beside it)")
+    ap.add_argument("family", help="a `cmrt family run` report (F.json; F.runs beside it is "
+                                   "used when present)")
     ap.add_argument("--at", type=float, nargs="+", help="values (default: the leave-out ones)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", action="store_true")
@@ -51,13 +79,15 @@ def main() -> int:
     report = json.loads(path.read_text())
     fs = parse_family(report["spec"])
     runs = plan_runs(fs)
-    results, _ = load_finished(path.with_suffix(".runs"), runs)
-    members = {v: res for v, (_, res) in family_members(runs, results).items()}
+    members, colds = _from_report(fs, report)
+    if path.with_suffix(".runs").is_dir():  # the runs themselves, when they are kept
+        results, _ = load_finished(path.with_suffix(".runs"), runs)
+        members = {v: res for v, (_, res) in family_members(runs, results).items()}
     rows = []
     with PoolExecutor(args.workers) as pool:
         for v in args.at or fs.leave_out:
             v = float(v)
-            cold = results.get(reference_run_id(fs, runs, v))
+            cold = colds.get(reference_run_id(fs, runs, v))
             if cold is None:
                 print(f"{v:g}: no cold run in the family; skipped")
                 continue
