@@ -148,47 +148,24 @@ class Rollout:
         the candidate that already ranks last). Every other run is unchanged bit for bit."""
         cpu0 = time.process_time()
         clip = _Clip(self, cmrt, traces)
-        for k in range(self.steps):
-            t = k * DT
-            if (stop_above is not None and k % CUT_CHECK_STEPS == 0 and not clip.lost
-                    and clip.lower_bound() > stop_above()):
-                return clip.cut(cpu0)
-            clip.observe(k, t)
-            if clip.fell_physically(t):
-                break
-            tau = clip.act(t)
-            if clip.loses_balance(t):
-                if not traces:
-                    break
-                tau = clip.hand_over(t)
-            clip.frame(k, t)
-            fy, cop = clip.step(tau, t)
-            clip.measure(k, t, fy, cop)
-        return clip.result(cpu0)
+        cut = clip.steps(stop_above)
+        return clip.cut(cpu0) if cut else clip.result(cpu0)
 
     def close(self) -> None:
         self.physics.close()
 
 
 class _Clip:
-    """One run of a `Rollout`: its state and the loop's pieces, in the order the loop calls
-    them each step: `observe` (state, model terms, the stance feet's terms), `fell_physically`
-    (the fall rules), `act` (the active controller's torques), `loses_balance` / `hand_over`
-    (the controller's own fall and the fall controller), `frame` (replay), `step` (torques,
-    task events, contacts, ODE step, contact feedback), `measure` (CP error and traces); then
-    `result` or `cut`."""
-
-    __slots__ = (
-        "rollout", "phys", "task", "events", "balance", "active", "releasable", "rec",
-        "foot_of_point", "n_feet", "cm_floor", "sq_sum", "max_e", "contact_steps", "fall_time",
-        "fall_reason", "direction", "lost", "c_ref", "k_done", "f0", "pargs", "M", "h", "c",
-        "cd", "A_L", "A_H", "Js", "pts", "sole_x", "held", "held_qdd", "tau_held", "neg_limit",
-        "limit", "lo", "hi", "s", "clearance", "code", "top", "stance", "obs_terms",
-    )
+    """One run of a `Rollout`: its state, the step loop (`steps`) and the loop's named pieces:
+    the divergence check, the fall rules (`_fall`: the body's own, and the controller's with the
+    hand-over to the fall controller, `_hand_over`), the recording (`Recorder`), and the scores
+    (`result`, or `cut` for a run stopped by its bound). The per-step path (state, model terms,
+    torques, world step, CP error) stays in `steps` with its values in local variables: as
+    method calls and attributes it cost 1.5-2 % more CPU per step."""
 
     def __init__(self, rollout: Rollout, cmrt: Cmrt | None, traces: bool):
         self.rollout = rollout
-        ch, phys, task = rollout.character, rollout.physics, rollout.task
+        phys, task = rollout.physics, rollout.task
         self.phys, self.task = phys, task
         phys.reset(rollout.q0)
         task.reset(phys)
@@ -198,165 +175,152 @@ class _Clip:
         self.releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
                            and task.reports_failure else None)
         self.balance.reset(None, self.releasable or cmrt)
-        self.events = task.events
-        self.foot_of_point = np.repeat(ch.feet, 2).tolist()
-        self.n_feet = len(ch.feet)
-        self.cm_floor = FALL_CM_FRACTION * rollout.cm0[1]
         self.rec = Recorder(rollout.steps, phys) if traces else None
         self.sq_sum = 0.0
         self.max_e = 0.0
         self.contact_steps = 0
+        self.k_done = 0
         self.fall_time: float | None = None
         self.fall_reason: str | None = None
         self.direction: str | None = None
-        self.lost = False
-        self.c_ref = (rollout.cm0[0], 0.0)
-        self.k_done = 0
         # Lower bound of the objective at any point of the clip: the running error norm grows
         # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
         # fall scores at least F0 = sqrt(steps) x support length.
         self.f0 = math.sqrt(rollout.steps) * rollout.support_length
+
+    def steps(self, stop_above: Callable[[], float] | None) -> bool:
+        """Simulate the clip's steps: observe (state, model terms, stance feet's terms), judge
+        the fall rules, act, record, step the world, measure the CP error. True when
+        `stop_above` cut the run."""
+        r, phys, task, rec = self.rollout, self.phys, self.task, self.rec
+        balance = active = self.balance
+        ch = r.character
+        events = task.events
+        releasable = self.releasable
+        foot_of_point = np.repeat(ch.feet, 2).tolist()
+        n_feet = len(ch.feet)
+        cm_floor = FALL_CM_FRACTION * r.cm0[1]
+        f0 = self.f0
+        sq_sum, max_e, contact_steps, k_done = 0.0, 0.0, 0, 0
+        lost = cut = False
+        c_ref = (r.cm0[0], 0.0)
         # The model terms are written into these arrays every step (step_model_packed): the
         # Observation's arrays hold this step's values only, as q and qd (read_state) do.
         # (`PackedModel`: views of one buffer, the constants in three arrays, so that the one
         # compiled call per step unboxes 6 arguments, not 24.)
-        pack = PackedModel(rollout.arrays, ch.ndof)
-        (self.M, self.h, self.c, self.cd, self.A_L, self.A_H, self.Js, self.pts,
-         self.sole_x) = pack.arrays()
-        self.pargs = pack.args()
+        pack = PackedModel(r.arrays, ch.ndof)
+        M, h, c, cd, A_L, A_H, Js, pts, sole_x = pack.arrays()
+        pargs = pack.args()
+        read_state = phys.read_state
+        apply_torques, add_clamped = phys.apply_torques, phys.add_clamped_torques
+        make_contacts, world_step = phys.make_contacts, phys.step
+        contact_forces, clear_contacts = phys.contact_forces, phys.clear_contacts
+        has_props = bool(phys.props)
         # Steps between QP solves: the model terms, the held accelerations' inverse dynamics
         # and the torque clamp in one compiled call (`step_model_held`), when the balance
         # controller offers them (`Controller.held_torque_step`); the same torques and
         # judgement as its `act`, bit for bit.
-        self.neg_limit, self.limit = phys.torque_bounds
-        self.tau_held = np.empty(len(self.limit))
-        self.held = False
-
-    def lower_bound(self) -> float:
-        """A lower bound of this clip's objective so far (see `Rollout.run`'s stop_above)."""
-        return min(math.sqrt(self.sq_sum), self.f0)
-
-    def observe(self, k: int, t: float) -> None:
-        """Read the state, check it for divergence, and compute the model terms (with the held
-        step's torques when the balance controller holds this step) and the stance terms."""
-        q, qd = self.phys.read_state()
-        if k % DIVERGENCE_CHECK_STEPS == 0:
-            why = self.phys.diverged(qd)
-            if why is not None:
-                raise DivergenceError(f"{self.rollout.spec.name}: the simulation diverged at "
-                                      f"t = {t:.3f} s ({why})")
-        active, balance = self.active, self.balance
-        held = self.held = active is balance and balance.held_torque_step()
-        if held:
-            lo, hi, self.clearance, self.code, _cop, self.top = step_model_held(
-                q, qd, *self.pargs, balance.qdd, balance.mu, self.neg_limit, self.limit,
-                self.tau_held)
-            stance = None
-            terms = (self.Js, self.pts, self.sole_x)
-        else:
-            lo, hi, self.clearance = step_model_packed(q, qd, *self.pargs)
-            stance = active.stance
-            if stance is not None:
-                # New arrays for the stance feet only; the full ones stay the model's.
-                js, pts, sole, (lo, hi) = stance_terms(self.Js, self.pts, self.sole_x, (lo, hi),
-                                                       stance, self.n_feet)
-                terms = (js, pts, sole)
+        held_step, held_act, mu = balance.held_torque_step, balance.held_act, balance.mu
+        neg_limit, limit = phys.torque_bounds
+        tau_held = np.empty(len(limit))
+        for k in range(r.steps):
+            t = k * DT
+            if (stop_above is not None and k % CUT_CHECK_STEPS == 0 and not lost
+                    and min(math.sqrt(sq_sum), f0) > stop_above()):
+                cut = True
+                break
+            q, qd = read_state()
+            if k % DIVERGENCE_CHECK_STEPS == 0:
+                self._check_divergence(qd, t)
+            held = active is balance and held_step()
+            if held:
+                lo, hi, clearance, code, _cop, top = step_model_held(
+                    q, qd, *pargs, balance.qdd, mu, neg_limit, limit, tau_held)
+                stance = None
+                o_Js, o_pts, o_sole = Js, pts, sole_x
             else:
-                terms = (self.Js, self.pts, self.sole_x)
-        self.lo, self.hi, self.stance, self.obs_terms = lo, hi, stance, (q, qd, *terms)
-        self.s = 0.5 * (lo + hi)
+                lo, hi, clearance = step_model_packed(q, qd, *pargs)
+                stance = active.stance
+                if stance is not None:
+                    # New arrays for the stance feet only; the full ones stay the model's.
+                    o_Js, o_pts, o_sole, (lo, hi) = stance_terms(Js, pts, sole_x, (lo, hi),
+                                                                 stance, n_feet)
+                else:
+                    o_Js, o_pts, o_sole = Js, pts, sole_x
+            s = 0.5 * (lo + hi)
+            if clearance < 0.0 or c[1] < cm_floor:  # the body's own fall rules: the clip ends
+                if self.fall_time is None:
+                    self._fall(t, "body_contact" if clearance < 0.0 else "cm_drop", c, cd, s)
+                break
+            if held:
+                held_act(code, top)
+                tau = None  # tau_held, clamped
+            else:
+                tau = active.act(Observation(q, qd, M, h, c, cd, A_L, A_H, o_Js, o_pts, o_sole,
+                                             (lo, hi), stance), t)
+            if not lost:
+                c_ref = balance.c_ref
+                if active.lost is not None:  # the controller's own fall
+                    lost = True
+                    self._fall(t, f"balance_lost:{active.lost}", c, cd, s)
+                    if rec is None:
+                        break
+                    active, tau = self._hand_over(Observation(
+                        q, qd, M, h, c, cd, A_L, A_H, o_Js, o_pts, o_sole, (lo, hi), stance), t)
+            if rec is not None and k % FRAME_EVERY == 0:
+                rec.frame(t, c, c_ref, (lo, hi))
+            # The world's step: torques, the task's events, contacts, ODE, contact feedback.
+            if tau is None:
+                add_clamped(tau_held.tolist())
+            else:
+                apply_torques(tau)
+            if events:
+                task.before_step(phys, t)
+            make_contacts(pts, foot_of_point)
+            if has_props:
+                phys.collide_props()
+            world_step()
+            fy, _fx, cop = contact_forces()
+            if events:
+                task.after_step(phys, t + DT)
+                if (releasable is not None and releasable.released_at is None and not lost
+                        and task.interaction_failed(phys, t + DT)):
+                    releasable.release(t + DT)
+            clear_contacts()
+            k_done = k + 1
+            # The CP error: NaN without ground contact or after balance was lost.
+            e = math.nan
+            if fy > MIN_CONTACT_FORCE and not lost:
+                e = cop - s
+                sq_sum += e * e
+                if abs(e) > max_e:  # max(max_e, |e|) without the builtin's call
+                    max_e = abs(e)
+                contact_steps += 1
+            if rec is not None:
+                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c,
+                          c_ref, fy)
+        self.sq_sum, self.max_e, self.contact_steps, self.k_done = (sq_sum, max_e,
+                                                                    contact_steps, k_done)
+        return cut
 
-    def observation(self) -> Observation:
-        q, qd, js, pts, sole = self.obs_terms
-        return Observation(q, qd, self.M, self.h, self.c, self.cd, self.A_L, self.A_H, js, pts,
-                           sole, (self.lo, self.hi), self.stance)
+    def _check_divergence(self, qd: np.ndarray, t: float) -> None:
+        why = self.phys.diverged(qd)
+        if why is not None:
+            raise DivergenceError(f"{self.rollout.spec.name}: the simulation diverged at "
+                                  f"t = {t:.3f} s ({why})")
 
-    def fell_physically(self, t: float) -> bool:
-        """The fall rules of the body itself: a body other than a foot on the ground, or the
-        CM below FALL_CM_FRACTION of its standing height (the clip ends)."""
-        if self.clearance < 0.0:
-            physical = "body_contact"
-        elif self.c[1] < self.cm_floor:
-            physical = "cm_drop"
-        else:
-            return False
-        if self.fall_time is None:
-            self._fall(t, physical)
-        return True
-
-    def _fall(self, t: float, reason: str) -> None:
+    def _fall(self, t: float, reason: str, c: np.ndarray, cd: np.ndarray, s: float) -> None:
+        """Record the clip's fall at t: its reason and direction (the CM's capture point's side
+        of the support centre s)."""
         self.fall_time, self.fall_reason = t, reason
-        self.direction = fall_direction(self.c, self.cd, self.s)
+        self.direction = fall_direction(c, cd, s)
 
-    def act(self, t: float) -> np.ndarray | None:
-        """The active controller's torques; None on a held step (they are in `tau_held`,
-        clamped)."""
-        if self.held:
-            self.balance.held_act(self.code, self.top)
-            return None
-        return self.active.act(self.observation(), t)
-
-    def loses_balance(self, t: float) -> bool:
-        """Whether the balance controller has just lost balance (the fall is recorded)."""
-        if self.lost:
-            return False
-        self.c_ref = self.balance.c_ref
-        if self.active.lost is None:
-            return False
-        self.lost = True
-        self._fall(t, f"balance_lost:{self.active.lost}")
-        return True
-
-    def hand_over(self, t: float) -> np.ndarray:
-        """The fall controller takes over from this step (traces on: the fall is shown)."""
-        obs = self.observation()
-        self.active = self.rollout.fall_controller
-        self.active.reset(obs)
-        return self.active.act(obs, t)
-
-    def frame(self, k: int, t: float) -> None:
-        if self.rec is not None and k % FRAME_EVERY == 0:
-            self.rec.frame(t, self.c, self.c_ref, (self.lo, self.hi))
-
-    def step(self, tau: np.ndarray | None, t: float) -> tuple[float, float]:
-        """Apply the torques, run the task's events, step the world from t to t + DT; the
-        feet's total normal force (N) and CP x (m) of the step."""
-        phys, task = self.phys, self.task
-        if tau is None:
-            phys.add_clamped_torques(self.tau_held.tolist())
-        else:
-            phys.apply_torques(tau)
-        if self.events:
-            task.before_step(phys, t)
-        phys.make_contacts(self.pts, self.foot_of_point)
-        if phys.props:
-            phys.collide_props()
-        phys.step()
-        fy, _fx, cop = phys.contact_forces()
-        if self.events:
-            task.after_step(phys, t + DT)
-            rel = self.releasable
-            if (rel is not None and rel.released_at is None and not self.lost
-                    and task.interaction_failed(phys, t + DT)):
-                rel.release(t + DT)
-        phys.clear_contacts()
-        return fy, cop
-
-    def measure(self, k: int, t: float, fy: float, cop: float) -> None:
-        """The CP error of step k (NaN without ground contact or after balance was lost) into
-        the objective's sums and the traces."""
-        self.k_done = k + 1
-        e = math.nan
-        s = self.s
-        if fy > MIN_CONTACT_FORCE and not self.lost:
-            e = cop - s
-            self.sq_sum += e * e
-            if abs(e) > self.max_e:  # max(max_e, |e|) without the builtin's call
-                self.max_e = abs(e)
-            self.contact_steps += 1
-        if self.rec is not None:
-            self.rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, self.c,
-                           self.c_ref, fy)
+    def _hand_over(self, obs: Observation, t: float) -> tuple[Controller, np.ndarray]:
+        """The fall controller takes over from this step (traces on: the fall is shown); it
+        and its torques for this step."""
+        fall = self.rollout.fall_controller
+        fall.reset(obs)
+        return fall, fall.act(obs, t)
 
     def cut(self, cpu0: float) -> Evaluation:
         """The result of a run stopped by `stop_above`: its objective's lower bound."""
