@@ -1,7 +1,7 @@
 """Is the rollout loop slower than another version of it? Both in one process, runs alternated.
 
     git show REV:sim/rollout.py > /tmp/old_rollout.py
-    .venv/bin/python -m bench.rollout_ab /tmp/old_rollout.py [--pairs 20] [SPEC.yaml ...]
+    .venv/bin/python -m bench.rollout_ab /tmp/old_rollout.py [SPEC.yaml ...] [--pairs 20]
 
 The other version's `sim/rollout.py` is loaded as a module of its own beside this checkout's
 `sim.rollout`; both build their Rollout from the same spec and share everything else (the
