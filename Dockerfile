@@ -40,12 +40,6 @@ RUN python3 -m venv /opt/venv \
  && /opt/venv/bin/python -c "import ode, sim, optim, store, worker, service, cli.main"
 
 ENV PATH=/opt/venv/bin:$PATH
-# The simulator's numba kernels compiled into the image (NUMBA_CACHE_DIR), so that a new
-# container's first evaluation does not compile them: that takes tens of seconds on a loaded
-# machine, more than a short evaluation time limit allows. Writable for the service's user.
-ENV NUMBA_CACHE_DIR=/opt/numba-cache
-RUN cmrt simulate examples/fast_bend.yaml --zero --json > /dev/null \
- && chmod -R a+rwX /opt/numba-cache
 RUN useradd --system --create-home cmrt && mkdir -p /data && chown cmrt /data
 USER cmrt
 ENV CMRT_DATA_DIR=/data
