@@ -56,7 +56,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 PG_ADMIN = os.environ.get("CMRT_BENCH_PG", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 

@@ -15,15 +15,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from sim.clip import evaluate  # noqa: E402
-from sim.spec import load_spec  # noqa: E402
+from sim.rollout import evaluate
+from sim.spec import load_spec
 
 EARLY_DECAY_S = 0.4  # s, the decay's first part, where the bend's transient settles
 

@@ -9,7 +9,11 @@
 2. The same request through `cmrt family submit` to `cmrt serve` on PostgreSQL (a database of
    its own on the machine's server, CMRT_BENCH_PG) and Celery on a private redis-server, with
    --workers `cmrt worker --concurrency 1` processes; --kill-after s after the submission one
-   worker's process group is killed with SIGKILL mid-family and a new worker started.
+   worker's process group is killed with SIGKILL mid-family and a new worker started. A
+   worker killed outright leaves its reserved task unacknowledged until Redis' visibility
+   timeout; the job's driver re-sends a candidate unresolved for CMRT_STALL_TIMEOUT (default
+   CMRT_EVAL_TIME_LIMIT + 60 = 660 s). The service here runs with a 30 s time limit and a 45 s
+   stall timeout (--stall), so the recovery shows within the run.
 3. The two reports compared: every member's parameters and objective, every run's
    evaluations, and the checks (Table 2 rows, probes, reconstruction errors) must be equal;
    the service's evaluations repeated after the kill (attempts above one) are counted, and
@@ -113,6 +117,8 @@ def main() -> int:
     ap.add_argument("--warm", nargs="*", default=["max_evaluations=24", "window=3"])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--kill-after", type=float, default=20.0)
+    ap.add_argument("--stall", type=float, default=45.0,
+                    help="CMRT_STALL_TIMEOUT of the service, s (re-send unresolved candidates)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="cmrt-family-bench-"))
@@ -142,6 +148,8 @@ def main() -> int:
                 .render_as_string(hide_password=False),
                 "CMRT_BROKER_URL": f"redis://127.0.0.1:{redis_port}/0",
                 "CMRT_DATA_DIR": str(work), "CMRT_SCAN_INTERVAL": "0.5",
+                "CMRT_EVAL_TIME_LIMIT": "30", "CMRT_STALL_TIMEOUT": str(args.stall),
+                "CMRT_VISIBILITY_TIMEOUT": "300",
                 "CMRT_URL": f"http://127.0.0.1:{api_port}"}
         procs.append(_start([str(CMRT), "serve", "--port", str(api_port)], senv,
                             work / "serve.log"))

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -29,13 +28,11 @@ from typing import Any
 
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from optim.result import OptimizationResult  # noqa: E402
-from sim.controllers.momentum import MomentumController  # noqa: E402
-from sim.ipm import capture_point  # noqa: E402
-from sim.rollout import Rollout  # noqa: E402
-from sim.spec import parse_spec  # noqa: E402
+from optim.result import OptimizationResult
+from sim.controllers.momentum import MomentumController
+from sim.ipm import capture_point
+from sim.rollout import Rollout
+from sim.spec import parse_spec
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

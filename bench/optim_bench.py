@@ -11,19 +11,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 import timeit
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from optim.cmaes import CmaOptimizer, StopRules  # noqa: E402
-from optim.executors import PoolExecutor, SerialExecutor  # noqa: E402
-from optim.spline import decode  # noqa: E402
-from sim.spec import load_spec, parse_spec  # noqa: E402
+from optim.cmaes import CmaOptimizer, StopRules
+from optim.executors import PoolExecutor, SerialExecutor
+from optim.spline import decode
+from sim.spec import load_spec, parse_spec
 
 GENERATIONS = 50
 SPLINE_CALLS = 100_000

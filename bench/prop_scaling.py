@@ -11,7 +11,8 @@ model them; they only load ODE (bodies, contact rows) and the collision pass. Fo
   * replay: `sim.bench.replay_ode_cpu_per_second` (the clip's own world, the controller's
     torques and contact points replayed open loop);
   * full: `Rollout.run` of the quiet-stance clip (everything);
-  * contacts: foot contacts and prop contacts per step, averaged over the clip.
+  * contacts: foot contacts and prop contacts per step, averaged over raw ODE stepping of the
+    same world (the standing pose, no controller).
 
     .venv/bin/python bench/prop_scaling.py [--seconds 3] [--props 0 1 2 4 8] [--layout row]
 """
@@ -22,8 +23,10 @@ import argparse
 import json
 import time
 
-from sim.bench import raw_ode_cpu_per_second, replay_ode_cpu_per_second
-from sim.physics import Physics
+import numpy as np
+
+from sim.bench import RAW_RESET_SECONDS, raw_ode_cpu_per_second, replay_ode_cpu_per_second
+from sim.physics import DT
 from sim.props import PropDef
 from sim.rollout import Rollout
 from sim.spec import parse_spec
@@ -44,37 +47,45 @@ def boxes(count: int, layout: str) -> list[PropDef]:
             for k in range(count)]
 
 
+def contacts_per_step(sim: Rollout, seconds: float) -> tuple[float, float]:
+    """(foot contacts, prop contacts) per step of `sim`'s world stepped as the raw ODE case
+    steps it (`sim.bench.raw_ode_cpu_per_second`: heel and toe contacts at the standing pose,
+    props collided, reset every RAW_RESET_SECONDS), counted after each step (not timed)."""
+    phys, ch = sim.physics, sim.character
+    pts = np.concatenate([[h, t] for h, t in zip(ch.heel0, ch.toe0, strict=True)])
+    pts[:, 1] = 0.0
+    feet = np.repeat(ch.feet, 2).tolist()
+    steps = int(round(seconds / DT))
+    every = int(round(RAW_RESET_SECONDS / DT))
+    foot = prop = 0
+    for k in range(steps):
+        if k % every == 0:
+            phys.reset(sim.q0)
+        phys.make_contacts(pts, feet)
+        phys.collide_props()
+        phys.step()
+        phys.contact_forces()
+        foot += len(phys.contacts)
+        prop += len(phys.prop_contacts)
+        phys.clear_contacts()
+    return foot / steps, prop / steps
+
+
 def measure(count: int, layout: str, seconds: float) -> dict[str, float | int | str]:
     """The three rates (CPU s per simulated s) and contacts per step with `count` boxes."""
     spec = parse_spec({"name": f"props_{layout}_{count}", "task": {"type": "quiet_stance"},
                        "clip": {"preparation": 0.0, "duration": seconds, "decay": 0.0}})
-    sim = Rollout(spec)
-    sim.physics.close()
-    sim.physics = Physics(sim.character, sim.arrays, boxes(count, layout))
+    sim = Rollout(spec, extra_props=boxes(count, layout))
     sim.run()  # warm-up
     raw = raw_ode_cpu_per_second(sim, seconds)
     t0 = time.process_time()
     ev = sim.run()
     full = (time.process_time() - t0) / ev.sim_seconds
     replay, _s, same = replay_ode_cpu_per_second(sim)
-    # Contacts per step, counted in a run of their own (not timed).
-    phys = sim.physics
-    clear = phys.clear_contacts
-    counts = [0, 0, 0]
-
-    def counting_clear() -> None:
-        counts[0] += len(phys.contacts)
-        counts[1] += len(phys.prop_contacts)
-        counts[2] += 1
-        clear()
-
-    phys.clear_contacts = counting_clear
-    sim.run()
-    del phys.clear_contacts
-    steps = max(counts[2], 1)
+    feet, props = contacts_per_step(sim, seconds)
     sim.close()
     return {"layout": layout, "props": count, "stood": not ev.fell,
-            "foot_contacts": counts[0] / steps, "prop_contacts": counts[1] / steps,
+            "foot_contacts": feet, "prop_contacts": props,
             "raw_ode": raw, "replay_ode": replay, "full": full, "full_over_raw": full / raw,
             "full_over_replay": full / replay, "controller_cost": full - replay,
             "replay_reproduced_clip": same}

@@ -36,20 +36,16 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import sim.controllers.momentum as momentum  # noqa: E402
-import sim.rollout as rollout  # noqa: E402
-from optim.result import OptimizationResult  # noqa: E402
-from sim.character import ROOT_DOF  # noqa: E402
-from sim.dynamics import GRAVITY  # noqa: E402
-from sim.rollout import ReleasableCmrt, Rollout  # noqa: E402
-from sim.spec import load_spec, parse_spec  # noqa: E402
+import sim.controllers.momentum as momentum
+import sim.rollout as rollout
+from optim.result import OptimizationResult
+from sim.character import ROOT_DOF
+from sim.dynamics import GRAVITY
+from sim.rollout import ReleasableCmrt, Rollout
+from sim.spec import load_spec, parse_spec
 
 #: Timeline rows: every this many seconds over TIMELINE.
 TIMELINE_STEP = 0.025

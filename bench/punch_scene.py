@@ -17,17 +17,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import sim.controllers.momentum as momentum  # noqa: E402
-from optim.result import OptimizationResult  # noqa: E402
-from sim.physics import DT, PROP_CHARACTER  # noqa: E402
-from sim.rollout import Rollout  # noqa: E402
-from sim.spec import load_spec, parse_spec  # noqa: E402
-from sim.tasks.punch import BAG  # noqa: E402
+import sim.controllers.momentum as momentum
+from optim.result import OptimizationResult
+from sim.physics import DT, PROP_CHARACTER
+from sim.rollout import Rollout
+from sim.spec import load_spec, parse_spec
+from sim.tasks.punch import BAG
 
 
 def measure(spec, cmrt) -> dict:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from sim.clip import Simulator
+from sim.rollout import Rollout
 from sim.spec import parse_spec
 
 
@@ -18,7 +18,7 @@ def survives(force: float, direction: str) -> bool:
                        "clip": {"preparation": 1.0, "duration": 0.2, "decay": 1.8},
                        "task": {"type": "push", "force": force, "direction": direction,
                                 "body": "trunk"}})
-    return not Simulator(spec).run().fell
+    return not Rollout(spec).run().fell
 
 
 def main() -> None:

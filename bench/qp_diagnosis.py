@@ -22,21 +22,18 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from sim.clip import Simulator  # noqa: E402
-from sim.dynamics import GRAVITY, momentum_bias  # noqa: E402
-from sim.physics import DT  # noqa: E402
-from sim.spec import load_spec  # noqa: E402
+from sim.dynamics import GRAVITY, momentum_bias
+from sim.physics import DT
+from sim.rollout import Rollout
+from sim.spec import load_spec
 
 
 def diagnose(spec_path: str, cmrt_path: str | None) -> tuple[list[dict], float]:
     spec = load_spec(spec_path)
-    sim = Simulator(spec)
+    sim = Rollout(spec)
     cmrt = None
     if cmrt_path:
         from optim.result import OptimizationResult

@@ -13,16 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-
-from optim.executors import PoolExecutor, SerialExecutor  # noqa: E402
-from optim.loop import SearchSpace, final_evaluation, new_optimizer, run_generations  # noqa: E402
-from optim.objective import SimObjective  # noqa: E402
-from optim.run import BatchEvaluator  # noqa: E402
-from sim import load_spec  # noqa: E402
+from optim.executors import PoolExecutor, SerialExecutor
+from optim.loop import SearchSpace, final_evaluation, new_optimizer, run_generations
+from optim.objective import SimObjective
+from optim.run import BatchEvaluator
+from sim import load_spec
 
 
 class _Record:

@@ -6,8 +6,8 @@
      with no balance controller: each step reads the state, applies constant torques that hold
      the standing pose statically plus the fall controller's low-stiffness PD, makes the heel
      and toe contacts (points from ODE's bodies), steps, reads the contact feedback and clears
-     the contacts (what `Simulator.run` does around its controller).
-(ii) full: `Simulator.run` on a quiet-stance clip (momentum QP at 60 Hz, numba model and
+     the contacts (what `Rollout.run` does around its controller).
+(ii) full: `Rollout.run` on a quiet-stance clip (momentum QP at 60 Hz, numba model and
      checked inverse dynamics every step, fall detection, CP measurement).
 Both are measured in one process with `time.process_time` (CPU seconds, so other jobs on the
 machine inflate wall time but not these numbers), after a warm-up that loads or compiles the
@@ -18,19 +18,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from sim.character import ROOT_DOF  # noqa: E402
-from sim.clip import Simulator  # noqa: E402
-from sim.dynamics import inverse_dynamics, step_model  # noqa: E402
-from sim.physics import DT  # noqa: E402
-from sim.spec import parse_spec  # noqa: E402
+from sim.character import ROOT_DOF
+from sim.dynamics import inverse_dynamics, step_model
+from sim.physics import DT
+from sim.rollout import Rollout
+from sim.spec import parse_spec
 
 
 def quiet_spec(seconds: float):
@@ -38,10 +34,10 @@ def quiet_spec(seconds: float):
                        "clip": {"preparation": 0.0, "duration": seconds, "decay": 0.0}})
 
 
-def raw_loop(sim: Simulator, steps: int) -> dict[str, float]:
+def raw_loop(sim: Rollout, steps: int) -> dict[str, float]:
     """Step the simulator's own world without the controller; returns CPU s and a sanity
     check (the CM height at the end, the number of contact joints made)."""
-    w, ch, a = sim.world, sim.character, sim.arrays
+    w, ch, a = sim.physics, sim.character, sim.arrays
     fall = sim.fall_controller
     w.reset(sim.q0)
     fall.engage(sim.q0[ROOT_DOF:])
@@ -85,13 +81,13 @@ def main(argv: list[str] | None = None) -> int:
     # Warm-up: numba functions (cached on disk after the first run, compiled otherwise),
     # PyODE, and one short pass through both loops.
     w0 = time.process_time()
-    warm = Simulator(quiet_spec(0.2))
+    warm = Rollout(quiet_spec(0.2))
     warm.run()
     raw_loop(warm, 200)
     warm.close()
     warmup = time.process_time() - w0
 
-    sim = Simulator(quiet_spec(args.clip_seconds))
+    sim = Rollout(quiet_spec(args.clip_seconds))
     raw_steps = int(round(args.raw_seconds / DT))
     raw = raw_loop(sim, raw_steps)
     raw_per_s = raw["cpu"] / (raw_steps * DT)
@@ -117,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"raw ODE stepping (contacts, PD hold, no controller): {raw_per_s:.3f} CPU s per "
           f"simulated s ({raw_steps * DT:g} s simulated, {raw['contacts_per_step']:.1f} "
           f"contacts/step)")
-    print(f"full controller, quiet stance (Simulator.run):        {full_per_s:.3f} CPU s per "
+    print(f"full controller, quiet stance (Rollout.run):        {full_per_s:.3f} CPU s per "
           f"simulated s ({ev.sim_seconds:g} s simulated, fell={ev.fell})")
     print(f"ratio full / raw:                                     {full_per_s / raw_per_s:.2f}")
     print(f"warm-up (numba load/compile, first runs), excluded:   {warmup:.2f} CPU s")

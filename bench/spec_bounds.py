@@ -26,11 +26,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from sim.errors import SimError, SpecError
+from sim.spec import load_spec, numeric_fields, parse_spec
 
-from sim.errors import SimError, SpecError  # noqa: E402
-from sim.spec import load_spec, numeric_fields, parse_spec  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: One example per task type and controller type.
 DEFAULT_EXAMPLES = ("catch", "domino", "fast_bend", "fast_bend_pd_world", "lion_dodge",

@@ -4,6 +4,9 @@
     .venv/bin/python bench/stepping.py grid --durations 0.1 0.2 0.4 --forces 100 700 50 \
         [--delay 0.2]
 
+Every clip is built from a spec: the step controller's settings are the spec's controller-block
+fields (`--delay`, `--fixed-gains`, `--params`; sim/controllers/config.py).
+
 `case` prints one clip's outcome and, with stepping, the steps (detection, lift-off,
 touch-down, length, the QP's planned CoP inside the support at every swing solve);
 `grid` runs every force of a grid per duration and direction, with and without stepping, and
@@ -16,43 +19,46 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
-from pathlib import Path
+from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from sim.controllers.stepping import SteppingController, SteppingParams  # noqa: E402
-from sim.physics import DT, FRICTION_MU  # noqa: E402
-from sim.rollout import Rollout  # noqa: E402
-from sim.spec import parse_spec  # noqa: E402
+from sim.rollout import Rollout
+from sim.spec import parse_spec
 
 PUSH_START = 1.0  # s
 DECAY = 2.5  # s after the push
 
 
 def push_spec(force: float, duration: float, direction: str, body: str,
-              stepping: bool, gains: dict | None = None) -> dict:
+              controller: dict[str, Any]) -> dict:
     return {"name": "step_push", "clip": {"preparation": PUSH_START, "duration": duration,
                                           "decay": DECAY},
             "task": {"type": "push", "force": force, "direction": direction, "body": body},
-            "controller": {"type": "momentum", "stepping": stepping, **(gains or {})}}
+            "controller": {"type": "momentum", **controller}}
 
 
-def rollout(force: float, duration: float, direction: str, stepping: bool, body: str,
-            params: SteppingParams | None = None, gains: dict | None = None) -> Rollout:
-    """One push clip; `gains` (feet fixed only): momentum overrides in the spec."""
-    sim = Rollout(parse_spec(push_spec(force, duration, direction, body, stepping,
-                                       None if stepping else gains)))
-    if stepping and params is not None:
-        sim.controller = SteppingController(sim.character, sim.controller.schedule,
-                                            sim.trajectory, sim.arrays, dt=DT, mu=FRICTION_MU,
-                                            params=params)
-    return sim
+def controller_block(stepping: bool, gains: dict | None = None,
+                     settings: dict | None = None) -> dict[str, Any]:
+    """The spec's controller block: without stepping `gains` are the momentum overrides; with
+    it they are the feet-fixed phase's (`feet_fixed`) and `settings` the step controller's
+    fields (`response_delay`, `max_steps`, ...)."""
+    if not stepping:
+        return {"stepping": False, **(gains or {})}
+    block: dict[str, Any] = {"stepping": True, **(settings or {})}
+    if gains is not None:
+        block["feet_fixed"] = gains
+    return block
 
 
-def run_case(force, duration, direction, stepping, body, params=None, traces=False,
-             gains=None):
-    sim = rollout(force, duration, direction, stepping, body, params, gains)
+def rollout(force: float, duration: float, direction: str, body: str,
+            controller: dict[str, Any]) -> Rollout:
+    """One push clip with this controller block."""
+    return Rollout(parse_spec(push_spec(force, duration, direction, body, controller)))
+
+
+def run_case(force: float, duration: float, direction: str, stepping: bool, body: str,
+             settings: dict | None = None, traces: bool = False,
+             gains: dict | None = None) -> tuple[dict, Any]:
+    sim = rollout(force, duration, direction, body, controller_block(stepping, gains, settings))
     try:
         ev = sim.run(None, traces=traces)
     finally:
@@ -78,7 +84,7 @@ def run_case(force, duration, direction, stepping, body, params=None, traces=Fal
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("case")
     c.add_argument("--force", type=float, default=300.0)
@@ -99,22 +105,16 @@ def main() -> None:
         sp.add_argument("--fixed-gains", default=None, metavar="JSON",
                         help="feet-fixed gains as JSON, e.g. "
                              '\'{"cop_box": 0.005, "d_l": 20}\': the spec\'s controller '
-                             "overrides without stepping, the step controller's "
-                             "feet_fixed_gains with it")
+                             "overrides without stepping, its feet_fixed "
+                             "with it")
         sp.add_argument("--params", default=None, metavar="JSON",
-                        help="SteppingParams fields as JSON, e.g. "
-                             '\'{"ik_hold_root_angle": true, "max_back_step_fraction": 0.45}\'')
+                        help="the step controller's spec fields as JSON, e.g. "
+                             '\'{"max_steps": 3, "clearance": 0.08}\'')
     args = ap.parse_args()
     gains = json.loads(args.fixed_gains) if args.fixed_gains else None
-    step_kw = {}
+    params = json.loads(args.params) if args.params else {}
     if args.delay is not None:
-        step_kw["response_delay"] = args.delay
-    if gains:
-        step_kw["feet_fixed_gains"] = tuple(sorted(gains.items()))
-    if args.params:
-        step_kw.update({k: tuple(map(tuple, v)) if isinstance(v, list) else v
-                        for k, v in json.loads(args.params).items()})
-    params = SteppingParams(**step_kw) if step_kw else None
+        params["response_delay"] = args.delay
     if args.cmd == "case":
         out, _ = run_case(args.force, args.duration, "backward" if args.backward else "forward",
                           args.stepping, args.body, params, gains=gains)

@@ -41,12 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-BENCH = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH.parent))
-sys.path.insert(0, str(BENCH))  # spawned pool workers unpickle this module's objective by name
-
-from optim.objective import SimObjective  # noqa: E402
-from optim.outcome import EvalOutcome  # noqa: E402
+from optim.objective import SimObjective
+from optim.outcome import EvalOutcome
 
 #: Cores of this machine (and of the paper's target: "2 workers").
 CORES = 2
@@ -110,8 +106,7 @@ def _load() -> str:
 
 def run(args: argparse.Namespace) -> int:
     """A seeded optimisation of SPEC with a per-generation log (see the module docstring)."""
-    from table1 import RecordingObjective as Objective  # picklable by module name
-
+    from bench.table1 import RecordingObjective as Objective  # picklable by module name
     from optim.executors import make_executor
     from optim.loop import SearchSpace, new_optimizer, step
     from optim.run import BatchEvaluator
@@ -253,8 +248,7 @@ def replay_best(log: dict[str, Any]) -> Any:
 
 def windows(args: argparse.Namespace) -> int:
     """Sum of e^2 by phase for the flat spline and each log's best CMRT (one clip each)."""
-    from error_windows import phase_sums
-
+    from bench.error_windows import phase_sums
     from optim.objective import evaluate_params
 
     out = {}

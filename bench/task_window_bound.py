@@ -23,17 +23,11 @@ import json
 import math
 import sys
 from functools import lru_cache
-from pathlib import Path
 from typing import Any
 
-BENCH = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH.parent))
-sys.path.insert(0, str(BENCH))  # so pool workers (spawned) import this module by name
-
-from error_windows import phase_sums  # noqa: E402  (the same phases as the ceiling's)
-
-from optim.objective import SimObjective  # noqa: E402
-from optim.outcome import EvalOutcome  # noqa: E402
+from bench.error_windows import phase_sums  # the same phases as the ceiling's
+from optim.objective import SimObjective
+from optim.outcome import EvalOutcome
 
 
 def task_window_sum(spec: Any, evaluation: Any) -> float:
@@ -60,8 +54,7 @@ class TaskWindowObjective(SimObjective):
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from task_window_bound import TaskWindowObjective as Objective  # picklable by module name
-
+    from bench.task_window_bound import TaskWindowObjective as Objective  # picklable by module name
     from optim.executors import make_executor
     from optim.run import optimize
     from sim.spec import load_spec, parse_spec

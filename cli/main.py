@@ -55,7 +55,7 @@ def _sequence_cmrt(spec: Any, base: Path) -> Any:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from optim.result import OptimizationResult
     from sim import load_spec
-    from sim.clip import Simulator
+    from sim.rollout import Rollout
 
     spec = load_spec(args.spec)
     cmrt = None
@@ -73,7 +73,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         return _die("--compare: needs a CMRT (--cmrt RESULT.json) to compare with the flat "
                     "spline")
     record = bool(args.trace or args.replay)
-    sim = Simulator(spec)
+    sim = Rollout(spec)
     t0 = time.perf_counter()
     try:
         ev = sim.run(cmrt, traces=record)

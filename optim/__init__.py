@@ -11,5 +11,7 @@ Modules:
     optim.pca          PCA basis of a family of results, reduced-space search
     optim.interpolate  interpolation of results along a task parameter
     optim.superpose    superposition of time-shifted CMRTs
+    optim.family       families along a task parameter: spec, plan of runs, Table 2 checks
+    optim.family_run   a family run in this process over one shared pool (resumable)
     optim.errors       domain exceptions
 """

@@ -2,7 +2,7 @@
 
 Contracts:
   * `SimObjective(spec)` is small and picklable: it holds only the spec's canonical JSON.
-    In each process it lazily builds ONE `sim.clip.Simulator` per distinct spec (module-level
+    In each process it lazily builds ONE `sim.rollout.Rollout` per distinct spec (module-level
     cache keyed by that JSON, at most `SIMULATOR_CACHE_SIZE` entries, least recently used
     dropped) and reuses it for every call; the simulator resets its world between runs, so
     results are deterministic and independent of call order.
@@ -11,7 +11,7 @@ Contracts:
     `params=None` evaluates the clip without any CMRT.
   * `evaluate_params(spec, params, traces=False) -> sim.evaluation.Evaluation` is the same
     evaluation with the full record (optionally per-step traces), using the same cache.
-  * `sim.clip` is imported lazily, so `optim` imports without it.
+  * `sim.rollout` is imported lazily, so `optim` imports without it.
 """
 
 from __future__ import annotations
@@ -30,10 +30,10 @@ if TYPE_CHECKING:
     from sim.evaluation import Evaluation
     from sim.spec import TaskSpec
 
-#: Simulators kept per process (each holds an ODE world).
+#: Rollouts kept per process (each holds an ODE world).
 SIMULATOR_CACHE_SIZE = 4
 
-_CACHE: OrderedDict[str, tuple[Any, Any]] = OrderedDict()  # spec JSON -> (TaskSpec, Simulator)
+_CACHE: OrderedDict[str, tuple[Any, Any]] = OrderedDict()  # spec JSON -> (TaskSpec, Rollout)
 
 
 def spec_json(spec: TaskSpec | Mapping[str, Any]) -> str:
@@ -49,15 +49,15 @@ def _parse(text: str) -> TaskSpec:
 
 
 def _cached(text: str) -> tuple[TaskSpec, Any]:
-    """(spec, Simulator) for this spec JSON in this process, built on first use."""
+    """(spec, Rollout) for this spec JSON in this process, built on first use."""
     hit = _CACHE.get(text)
     if hit is not None:
         _CACHE.move_to_end(text)
         return hit
-    from sim.clip import Simulator  # lazy: heavy, and may not exist in a numerics-only setup
+    from sim.rollout import Rollout  # lazy: heavy, and may not exist in a numerics-only setup
 
     spec = _parse(text)
-    entry = (spec, Simulator(spec))
+    entry = (spec, Rollout(spec))
     _CACHE[text] = entry
     while len(_CACHE) > SIMULATOR_CACHE_SIZE:
         _CACHE.popitem(last=False)

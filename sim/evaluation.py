@@ -69,7 +69,7 @@ class Evaluation:
 
     objective: 2-norm (metres) of the CP error e = cp - support centre sampled every step,
         no-contact steps left out. A fall replaces it by a penalty larger than any non-fall
-        objective (see sim.clip.fall_penalty), so every fall ranks worse than every non-fall.
+        objective (see sim.rollout.fall_penalty), so every fall ranks worse than every non-fall.
     error_norm: the 2-norm of the error actually accumulated until the clip ended (or fell).
     fall_direction: "forward" or "backward" (where the CM's capture point c_x + cd_x
         sqrt(c_y / g) was relative to the support centre at the fall), None without a fall.

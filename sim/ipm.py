@@ -137,21 +137,19 @@ class StepPlan:
 def plan_step(t0: float, c: np.ndarray, cd: np.ndarray, pivot: float,
               swing_start: tuple[float, float], direction: int, duration: float,
               clearance: float, max_step: float, land_depth: float = 0.01,
-              capture_offset: float = 0.0, reach_from: float | None = None,
+              reach_from: float | None = None,
               push: float = 0.0) -> StepPlan:
     """Plan a step from the state (c, cd) at t0 with the CoP held at `pivot`: the IPM gives the
     CM at touch-down (t0 + duration) and its capture point there; the swing foot's sole centre
-    lands `capture_offset` (m, along `direction`) short of that point, so the capture point lies
-    over the new foot, at most `max_step` (m) from `reach_from` (x of the stance foot's sole
-    centre: the leg's reach; None: from where the swing foot started) and never behind where it
-    started. `land_depth` (m): the foot is aimed this far below the ground so that it makes
-    contact. `push` (m/s^2): an estimated horizontal acceleration from outside, held over the
-    swing (`pendulum_path`)."""
+    lands at that point, so the capture point lies over the new foot, at most `max_step` (m)
+    from `reach_from` (x of the stance foot's sole centre: the leg's reach; None: from where
+    the swing foot started) and never behind where it started. `land_depth` (m): the foot is
+    aimed this far below the ground so that it makes contact. `push` (m/s^2): an estimated
+    horizontal acceleration from outside, held over the swing (`pendulum_path`)."""
     path = pendulum_path(c, cd, pivot, duration, t0, push)
     pos, vel, _acc = path.state(t0 + duration)
     xi = capture_point(pos, vel)
-    x_land = _landing(xi - direction * capture_offset, swing_start[0], direction, max_step,
-                      reach_from)
+    x_land = _landing(xi, swing_start[0], direction, max_step, reach_from)
     return StepPlan(t0, duration, direction, path, (float(swing_start[0]), float(swing_start[1])),
                     (float(x_land), -land_depth), clearance, xi)
 
@@ -166,8 +164,7 @@ def _landing(x_goal: float, start: float, direction: int, max_step: float,
 
 
 def replan_step(plan: StepPlan, t: float, c: np.ndarray, cd: np.ndarray, max_step: float,
-                capture_offset: float = 0.0, reach_from: float | None = None,
-                push: float = 0.0) -> StepPlan:
+                reach_from: float | None = None, push: float = 0.0) -> StepPlan:
     """The same step (lift-off, touch-down time, pivot) re-planned from the CM state at t: the
     IPM from (c, cd) over what is left of the swing, and the landing under its new capture point.
     A push still acting when the step started moves the capture point on; re-planning follows it
@@ -178,6 +175,6 @@ def replan_step(plan: StepPlan, t: float, c: np.ndarray, cd: np.ndarray, max_ste
     pos, vel, _acc = path.state(t_land)
     xi = capture_point(pos, vel)
     d = plan.direction
-    x_land = _landing(xi - d * capture_offset, plan.start[0], d, max_step, reach_from)
+    x_land = _landing(xi, plan.start[0], d, max_step, reach_from)
     return StepPlan(plan.t0, plan.duration, d, path, plan.start,
                     (float(x_land), plan.land[1]), plan.clearance, xi)

@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from sim.character import ROOT_DOF, Character
+from sim.character import ROOT_DOF
 from sim.controllers import FallController
 from sim.controllers.base import Cmrt, Controller, Observation, stance_terms
 from sim.controllers.registry import ControllerContext, build_controller
@@ -48,8 +48,10 @@ from sim.dynamics import (
 )
 from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
+from sim.props import PropDef
 from sim.recording import FRAME_EVERY, Recorder
 from sim.spec import TaskSpec
+from sim.standing import standing_state
 from sim.trajectory import PoseTrajectory, ease
 
 FALL_CM_FRACTION = 0.6  # a CM below 60 % of its standing height is a fall
@@ -90,57 +92,6 @@ class ReleasableCmrt:
         return (w * self._held[0], w * self._held[1])
 
 
-def standing_state(ch: Character, arrays: ModelArrays,
-                   pose: dict[int, float] | None = None) -> np.ndarray:
-    """q of the standing pose: feet flat with the right heel where the zero pose has it; with
-    `balance_standing`, the body leans at the ankles so the CM is over the support centre.
-    `pose` ({hinge index: rad} relative to the standing pose, e.g. arms held out) changes the
-    pose before the lean is found."""
-    hinge = ch.standing_offsets.copy()
-    for j, off in (pose or {}).items():
-        hinge[j] += off
-    feet_chains = []
-    for f in ch.feet:
-        chain, b = [], int(f)
-        while b > 0:
-            chain.append(b - 1)
-            b = int(ch.parent[b])
-        feet_chains.append(chain)  # the foot's own hinge first
-
-    def place(phi: float) -> tuple[np.ndarray, float]:
-        q = np.zeros(ch.ndof)
-        q[2] = phi
-        h = hinge.copy()
-        for chain in feet_chains:
-            own, others = chain[0], chain[1:]
-            h[own] = -(phi + sum(h[j] for j in others))  # foot flat on the ground
-        q[ROOT_DOF:] = h
-        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
-        f0 = int(ch.feet[0])
-        heel = p[f0] + _rot(alpha[f0], arrays.heel_local[0])
-        q[:2] += ch.heel0[0] - heel
-        alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
-        cx = float((ch.mass * p[:, 0]).sum() / ch.mass.sum())
-        centre = 0.5 * (ch.heel0[:, 0].min() + ch.toe0[:, 0].max())
-        return q, cx - centre
-
-    if not ch.balance_standing:
-        return place(0.0)[0]
-    a, b = 0.0, -0.05
-    fa, fb = place(a)[1], place(b)[1]
-    for _ in range(30):  # secant on the lean angle
-        if abs(fb) < 1e-10 or fb == fa:
-            break
-        a, b, fa = b, b - fb * (b - a) / (fb - fa), fb
-        fb = place(b)[1]
-    return place(b)[0]
-
-
-def _rot(a: float, v: np.ndarray) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
-
-
 def fall_penalty(fall_time: float, length: float, steps: int, support_length: float) -> float:
     """Objective of a clip that fell at `fall_time` s of `length`: in (F0, 2 F0], F0 being an
     upper bound of any non-fall objective, sqrt(steps) x support length."""
@@ -156,16 +107,20 @@ def fall_direction(c: np.ndarray, cd: np.ndarray, support_centre: float) -> str:
 
 
 class Rollout:
-    """A task spec's physics, task and controllers, built once and reset for each run."""
+    """A task spec's physics, task and controllers, built once and reset for each run.
 
-    def __init__(self, spec: TaskSpec):
+    `extra_props`: props placed in the world beside the task's (the controller and the task do
+    not know them; a measurement's load, e.g. the cost per prop in bench/prop_scaling.py)."""
+
+    def __init__(self, spec: TaskSpec, extra_props: Sequence[PropDef] = ()):
         self.spec = spec
         ch = spec.load_character()
         self.character = ch
         self.support_length = ch.support_length
         self.arrays = ModelArrays.from_character(ch)
         self.task = spec.task.build(spec, ch)
-        self.physics = Physics(ch, self.arrays, self.task.props)
+        props = self.task.props
+        self.physics = Physics(ch, self.arrays, (*props, *extra_props) if extra_props else props)
         self.q0 = standing_state(ch, self.arrays, self.task.initial_pose)
         # Start with the ground contacts already loaded: sink the body by the static
         # penetration of a soft contact, depth = (m g / contacts) / k with the contact
@@ -183,11 +138,6 @@ class Rollout:
         self.fall_controller = FallController(ch, DT)
         self.steps = int(round(spec.clip.length / DT))
 
-    @property
-    def world(self) -> Physics:
-        """The physics (the name this attribute had before the reshape)."""
-        return self.physics
-
     def run(self, cmrt: Cmrt | None = None, traces: bool = False,
             stop_above: Callable[[], float] | None = None) -> Evaluation:
         """Simulate the clip with the CMRT (None: no anticipation) and score it.
@@ -197,116 +147,129 @@ class Rollout:
         returns that lower bound as its objective with `cut=True` (`optim.rankcut` uses it for
         the candidate that already ranks last). Every other run is unchanged bit for bit."""
         cpu0 = time.process_time()
-        ch, a, phys, task = self.character, self.arrays, self.physics, self.task
-        n_steps = self.steps
-        phys.reset(self.q0)
+        clip = _Clip(self, cmrt, traces)
+        cut = clip.steps(stop_above)
+        return clip.cut(cpu0) if cut else clip.result(cpu0)
+
+    def close(self) -> None:
+        self.physics.close()
+
+
+class _Clip:
+    """One run of a `Rollout`: its state, the step loop (`steps`) and the loop's named pieces:
+    the divergence check, the fall rules (`_fall`: the body's own, and the controller's with the
+    hand-over to the fall controller, `_hand_over`), the recording (`Recorder`), and the scores
+    (`result`, or `cut` for a run stopped by its bound). The per-step path (state, model terms,
+    torques, world step, CP error) stays in `steps` with its values in local variables: as
+    method calls and attributes it cost 1.5-2 % more CPU per step."""
+
+    def __init__(self, rollout: Rollout, cmrt: Cmrt | None, traces: bool):
+        self.rollout = rollout
+        phys, task = rollout.physics, rollout.task
+        self.phys, self.task = phys, task
+        phys.reset(rollout.q0)
         task.reset(phys)
-        balance = self.controller
-        active: Controller = balance
+        self.balance = self.active = rollout.controller
         # Only a task that can report a failed interaction gets the wrapper: every other clip
         # hands the controller the CMRT itself.
-        releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
-                      and task.reports_failure else None)
-        active.reset(None, releasable or cmrt)
+        self.releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
+                           and task.reports_failure else None)
+        self.balance.reset(None, self.releasable or cmrt)
+        self.rec = Recorder(rollout.steps, phys) if traces else None
+        self.sq_sum = 0.0
+        self.max_e = 0.0
+        self.contact_steps = 0
+        self.k_done = 0
+        self.fall_time: float | None = None
+        self.fall_reason: str | None = None
+        self.direction: str | None = None
+        # Lower bound of the objective at any point of the clip: the running error norm grows
+        # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
+        # fall scores at least F0 = sqrt(steps) x support length.
+        self.f0 = math.sqrt(rollout.steps) * rollout.support_length
+
+    def steps(self, stop_above: Callable[[], float] | None) -> bool:
+        """Simulate the clip's steps: observe (state, model terms, stance feet's terms), judge
+        the fall rules, act, record, step the world, measure the CP error. True when
+        `stop_above` cut the run."""
+        r, phys, task, rec = self.rollout, self.phys, self.task, self.rec
+        balance = active = self.balance
+        ch = r.character
         events = task.events
+        releasable = self.releasable
         foot_of_point = np.repeat(ch.feet, 2).tolist()
         n_feet = len(ch.feet)
-        cm_floor = FALL_CM_FRACTION * self.cm0[1]
-        rec = Recorder(n_steps, phys) if traces else None
-        sq_sum = 0.0
-        max_e = 0.0
-        contact_steps = 0
-        fall_time = None
-        fall_reason = None
-        direction = None
-        lost = False
-        c_ref = (self.cm0[0], 0.0)
-        k_done = 0
+        cm_floor = FALL_CM_FRACTION * r.cm0[1]
+        f0 = self.f0
+        sq_sum, max_e, contact_steps, k_done = 0.0, 0.0, 0, 0
+        lost = cut = False
+        c_ref = (r.cm0[0], 0.0)
         # The model terms are written into these arrays every step (step_model_packed): the
         # Observation's arrays hold this step's values only, as q and qd (read_state) do.
         # (`PackedModel`: views of one buffer, the constants in three arrays, so that the one
         # compiled call per step unboxes 6 arguments, not 24.)
-        pack = PackedModel(a, ch.ndof)
+        pack = PackedModel(r.arrays, ch.ndof)
         M, h, c, cd, A_L, A_H, Js, pts, sole_x = pack.arrays()
         pargs = pack.args()
-        read_state, diverged = phys.read_state, phys.diverged
-        apply_torques, make_contacts, world_step = phys.apply_torques, phys.make_contacts, phys.step
+        read_state = phys.read_state
+        apply_torques, add_clamped = phys.apply_torques, phys.add_clamped_torques
+        make_contacts, world_step = phys.make_contacts, phys.step
         contact_forces, clear_contacts = phys.contact_forces, phys.clear_contacts
         has_props = bool(phys.props)
         # Steps between QP solves: the model terms, the held accelerations' inverse dynamics
         # and the torque clamp in one compiled call (`step_model_held`), when the balance
-        # controller offers it; the same torques and judgement as its `act`, bit for bit.
-        held_step = getattr(balance, "held_torque_step", None)
-        held_act = getattr(balance, "held_act", None)
+        # controller offers them (`Controller.held_torque_step`); the same torques and
+        # judgement as its `act`, bit for bit.
+        held_step, held_act, mu = balance.held_torque_step, balance.held_act, balance.mu
         neg_limit, limit = phys.torque_bounds
         tau_held = np.empty(len(limit))
-        add_clamped = phys.add_clamped_torques
-        mu = getattr(balance, "mu", 0.0)
-        # Lower bound of the objective at any point of the clip: the running error norm grows
-        # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
-        # fall scores at least F0 = sqrt(steps) x support length.
-        f0 = math.sqrt(n_steps) * self.support_length
-        cut = False
-        for k in range(n_steps):
+        for k in range(r.steps):
             t = k * DT
-            if stop_above is not None and k % CUT_CHECK_STEPS == 0 and not lost:
-                bound = min(math.sqrt(sq_sum), f0)
-                if bound > stop_above():
-                    cut = True
-                    break
+            if (stop_above is not None and k % CUT_CHECK_STEPS == 0 and not lost
+                    and min(math.sqrt(sq_sum), f0) > stop_above()):
+                cut = True
+                break
             q, qd = read_state()
             if k % DIVERGENCE_CHECK_STEPS == 0:
-                why = diverged(qd)
-                if why is not None:
-                    raise DivergenceError(f"{self.spec.name}: the simulation diverged at "
-                                          f"t = {t:.3f} s ({why})")
-            held = held_step is not None and active is balance and held_step()
+                self._check_divergence(qd, t)
+            held = active is balance and held_step()
             if held:
                 lo, hi, clearance, code, _cop, top = step_model_held(
                     q, qd, *pargs, balance.qdd, mu, neg_limit, limit, tau_held)
                 stance = None
-                obs_Js, obs_pts, obs_sole = Js, pts, sole_x
+                o_Js, o_pts, o_sole = Js, pts, sole_x
             else:
                 lo, hi, clearance = step_model_packed(q, qd, *pargs)
-                stance = getattr(active, "stance", None)
+                stance = active.stance
                 if stance is not None:
                     # New arrays for the stance feet only; the full ones stay the model's.
-                    obs_Js, obs_pts, obs_sole, (lo, hi) = stance_terms(Js, pts, sole_x,
-                                                                       (lo, hi), stance, n_feet)
+                    o_Js, o_pts, o_sole, (lo, hi) = stance_terms(Js, pts, sole_x, (lo, hi),
+                                                                 stance, n_feet)
                 else:
-                    obs_Js, obs_pts, obs_sole = Js, pts, sole_x
+                    o_Js, o_pts, o_sole = Js, pts, sole_x
             s = 0.5 * (lo + hi)
-            physical = None
-            if clearance < 0.0:
-                physical = "body_contact"
-            elif c[1] < cm_floor:
-                physical = "cm_drop"
-            if physical is not None:
-                if fall_time is None:
-                    fall_time, fall_reason = t, physical
-                    direction = fall_direction(c, cd, s)
+            if clearance < 0.0 or c[1] < cm_floor:  # the body's own fall rules: the clip ends
+                if self.fall_time is None:
+                    self._fall(t, "body_contact" if clearance < 0.0 else "cm_drop", c, cd, s)
                 break
             if held:
                 held_act(code, top)
                 tau = None  # tau_held, clamped
             else:
-                tau = active.act(Observation(q, qd, M, h, c, cd, A_L, A_H, obs_Js, obs_pts,
-                                             obs_sole, (lo, hi), stance), t)
+                tau = active.act(Observation(q, qd, M, h, c, cd, A_L, A_H, o_Js, o_pts, o_sole,
+                                             (lo, hi), stance), t)
             if not lost:
                 c_ref = balance.c_ref
-                if active.lost is not None:
+                if active.lost is not None:  # the controller's own fall
                     lost = True
-                    fall_time, fall_reason = t, f"balance_lost:{active.lost}"
-                    direction = fall_direction(c, cd, s)
+                    self._fall(t, f"balance_lost:{active.lost}", c, cd, s)
                     if rec is None:
                         break
-                    obs = Observation(q, qd, M, h, c, cd, A_L, A_H, obs_Js, obs_pts, obs_sole,
-                                      (lo, hi), stance)
-                    active = self.fall_controller
-                    active.reset(obs)
-                    tau = active.act(obs, t)
+                    active, tau = self._hand_over(Observation(
+                        q, qd, M, h, c, cd, A_L, A_H, o_Js, o_pts, o_sole, (lo, hi), stance), t)
             if rec is not None and k % FRAME_EVERY == 0:
                 rec.frame(t, c, c_ref, (lo, hi))
+            # The world's step: torques, the task's events, contacts, ODE, contact feedback.
             if tau is None:
                 add_clamped(tau_held.tolist())
             else:
@@ -325,6 +288,7 @@ class Rollout:
                     releasable.release(t + DT)
             clear_contacts()
             k_done = k + 1
+            # The CP error: NaN without ground contact or after balance was lost.
             e = math.nan
             if fy > MIN_CONTACT_FORCE and not lost:
                 e = cop - s
@@ -333,37 +297,68 @@ class Rollout:
                     max_e = abs(e)
                 contact_steps += 1
             if rec is not None:
-                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c, c_ref,
-                          fy)
+                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c,
+                          c_ref, fy)
+        self.sq_sum, self.max_e, self.contact_steps, self.k_done = (sq_sum, max_e,
+                                                                    contact_steps, k_done)
+        return cut
+
+    def _check_divergence(self, qd: np.ndarray, t: float) -> None:
+        why = self.phys.diverged(qd)
+        if why is not None:
+            raise DivergenceError(f"{self.rollout.spec.name}: the simulation diverged at "
+                                  f"t = {t:.3f} s ({why})")
+
+    def _fall(self, t: float, reason: str, c: np.ndarray, cd: np.ndarray, s: float) -> None:
+        """Record the clip's fall at t: its reason and direction (the CM's capture point's side
+        of the support centre s)."""
+        self.fall_time, self.fall_reason = t, reason
+        self.direction = fall_direction(c, cd, s)
+
+    def _hand_over(self, obs: Observation, t: float) -> tuple[Controller, np.ndarray]:
+        """The fall controller takes over from this step (traces on: the fall is shown); it
+        and its torques for this step."""
+        fall = self.rollout.fall_controller
+        fall.reset(obs)
+        return fall, fall.act(obs, t)
+
+    def cut(self, cpu0: float) -> Evaluation:
+        """The result of a run stopped by `stop_above`: its objective's lower bound."""
+        self.phys.clear_contacts()
+        error_norm = math.sqrt(self.sq_sum)
+        k_done = self.k_done
+        return Evaluation(
+            objective=min(error_norm, self.f0), fell=False, fall_time=None, fall_reason=None,
+            error_norm=error_norm, max_abs_error=self.max_e, sim_seconds=k_done * DT,
+            cpu_seconds=time.process_time() - cpu0, steps=k_done,
+            contact_steps=self.contact_steps, cut=True,
+        )
+
+    def result(self, cpu0: float) -> Evaluation:
+        """The scored clip: the CP error's 2-norm, or the fall penalty, plus the task's."""
+        phys, task, r = self.phys, self.task, self.rollout
         phys.clear_contacts()
-        error_norm = math.sqrt(sq_sum)
-        if cut:
-            return Evaluation(
-                objective=min(error_norm, f0), fell=False, fall_time=None, fall_reason=None,
-                error_norm=error_norm, max_abs_error=max_e, sim_seconds=k_done * DT,
-                cpu_seconds=time.process_time() - cpu0, steps=k_done,
-                contact_steps=contact_steps, cut=True,
-            )
+        error_norm = math.sqrt(self.sq_sum)
+        fall_time = self.fall_time
         fell = fall_time is not None
-        objective = (fall_penalty(fall_time, self.spec.clip.length, n_steps, self.support_length)
-                     if fell else error_norm)
-        penalty = task.penalty(phys, math.sqrt(n_steps) * self.support_length)
+        objective = (fall_penalty(fall_time, r.spec.clip.length, r.steps, r.support_length)
+                     if fall_time is not None else error_norm)
+        penalty = task.penalty(phys, math.sqrt(r.steps) * r.support_length)
         if penalty:
             objective += penalty
         out_traces = out_frames = None
-        if rec is not None:
-            out_traces, out_frames = rec.result(k_done)
+        if self.rec is not None:
+            out_traces, out_frames = self.rec.result(self.k_done)
+        k_done = self.k_done
         return Evaluation(
-            objective=objective, fell=fell, fall_time=fall_time, fall_reason=fall_reason,
-            error_norm=error_norm, max_abs_error=max_e, sim_seconds=k_done * DT,
-            cpu_seconds=time.process_time() - cpu0, steps=k_done, contact_steps=contact_steps,
-            fall_direction=direction, task_success=task.success(phys), task_penalty=penalty,
-            cmrt_released_at=None if releasable is None else releasable.released_at,
+            objective=objective, fell=fell, fall_time=fall_time, fall_reason=self.fall_reason,
+            error_norm=error_norm, max_abs_error=self.max_e, sim_seconds=k_done * DT,
+            cpu_seconds=time.process_time() - cpu0, steps=k_done,
+            contact_steps=self.contact_steps, fall_direction=self.direction,
+            task_success=task.success(phys), task_penalty=penalty,
+            cmrt_released_at=None if self.releasable is None else self.releasable.released_at,
             traces=out_traces, frames=out_frames,
         )
-
-    def close(self) -> None:
-        self.physics.close()
 
 
 def evaluate(spec: TaskSpec, cmrt: Cmrt | None = None, traces: bool = False) -> Evaluation:

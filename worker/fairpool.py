@@ -52,7 +52,7 @@ POLL_S = 0.1
 #: Start method of the slot processes: a fork server (started like "spawn", so no thread or
 #: ODE state of the server is inherited) that has imported `FORKSERVER_PRELOAD`.
 DEFAULT_SLOT_START_METHOD = "forkserver"
-FORKSERVER_PRELOAD = ("numpy", "optim.objective", "optim.spline", "sim.clip", "worker.fairpool",
+FORKSERVER_PRELOAD = ("numpy", "optim.objective", "optim.spline", "sim.rollout", "worker.fairpool",
                       "worker.slotwarm")
 
 OnResult = Callable[[int, "EvalOutcome | EvaluationError"], None]

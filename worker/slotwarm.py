@@ -9,13 +9,13 @@ import contextlib
 
 
 def _warm() -> None:
-    from sim.clip import Simulator
+    from sim.rollout import Rollout
     from sim.spec import parse_spec
 
     spec = parse_spec({"name": "slot_warm_up", "family": "warm",
                        "clip": {"preparation": 0.02, "duration": 0.02, "decay": 0.02},
                        "task": {"type": "quiet_stance"}}, "<slot warm-up>")
-    sim = Simulator(spec)
+    sim = Rollout(spec)
     try:
         sim.run(None)
     finally:

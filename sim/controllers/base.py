@@ -1,6 +1,7 @@
 """The controller protocol and what every controller observes.
 
-Contract of a `Controller`:
+Contract of a `Controller` (every controller derives from the base class below, which declares
+everything the rollout may ask of one and its default; the rollout asks nothing else):
   * `reset(observation=None, reference=None)` starts a run: `observation` is the state at the
     moment the controller takes over (None at the clip's start), `reference` the CMRT for
     controllers that track one (a callable t -> horizontal [, vertical] CM displacement in m).
@@ -9,22 +10,27 @@ Contract of a `Controller`:
     the physics clamps them to the character's torque limits.
   * `lost` is None while the controller holds balance, else a short reason: the rollout then
     hands over to the fall controller. A controller never steps the world or reads ODE.
-  * optional `stance`: the indices (into `character.feet`) of the feet the controller treats as
-    planted for the next step, None for every foot. The rollout builds the observation's `Js`,
-    `points`, `sole_x` and `support` from those feet only (`stance_terms`), so a swing foot's
-    constraint rows are dropped; a controller without the attribute plants every foot.
+  * `stance`: the indices (into `character.feet`) of the feet the controller treats as
+    planted for the next step, None (the default) for every foot. The rollout builds the
+    observation's `Js`, `points`, `sole_x` and `support` from those feet only
+    (`stance_terms`), so a swing foot's constraint rows are dropped.
   * `c_ref` is the CM reference (x in m, vertical displacement in m) of the last `act`, what
     the recording shows beside the CM (a controller without a CM target of its own reports
     the support centre plus the CMRT displacement it follows).
+  * held steps (optional, default off): `held_torque_step()` True says that this step's `act`
+    would only hold the accelerations `qdd` (rad/s^2, per coordinate) and share the support
+    wrench by least norm over every foot with friction coefficient `mu`; the rollout then
+    computes those torques in one compiled call with the model terms
+    (`sim.dynamics.step_model_held`) and calls `held_act(code, top)` instead of `act`, with
+    the same torques and state, bit for bit.
   * Balance controllers are built from the spec's `controller` block by one factory,
     `sim.controllers.registry.build_controller` (contract in `sim.controllers.config`).
 """
-
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -74,11 +80,35 @@ def stance_terms(Js: np.ndarray, points: np.ndarray, sole_x: np.ndarray,
     return Js[rows], pts, sole_x[list(stance)], (lo, hi)
 
 
-class Controller(Protocol):
-    lost: str | None
-    c_ref: tuple[float, float]
+class Controller:
+    """What the rollout may ask of a controller (module doc), with the defaults of a controller
+    that plants every foot and has no held steps."""
+
+    #: None while balance holds, else why it was lost.
+    lost: str | None = None
+    #: m: the CM reference (x, vertical displacement) of the last `act`.
+    c_ref: tuple[float, float] = (0.0, 0.0)
+    #: Indices into `character.feet` of the feet planted for the next step; None: every foot.
+    stance: tuple[int, ...] | None = None
+    #: Friction coefficient of a held step's wrench check (read only when held steps are on).
+    mu: float = 0.0
+    #: rad/s^2 (m/s^2 for the root's x, y): the accelerations a held step holds.
+    qdd: np.ndarray
 
     def reset(self, observation: Observation | None = None,
-              reference: Cmrt | None = None) -> None: ...
+              reference: Cmrt | None = None) -> None:
+        """Start a run (module doc)."""
+        raise NotImplementedError
 
-    def act(self, observation: Observation, t: float) -> np.ndarray: ...
+    def act(self, observation: Observation, t: float) -> np.ndarray:
+        """This step's hinge torques (N m)."""
+        raise NotImplementedError
+
+    def held_torque_step(self) -> bool:
+        """Whether the next step is a held step (module doc); never, by default."""
+        return False
+
+    def held_act(self, code: int, top: float) -> None:
+        """What `act` does after its inverse dynamics on a held step, given the wrench code and
+        the highest stance heel or toe (m) that `sim.dynamics.step_model_held` found."""
+        raise NotImplementedError(f"{type(self).__name__} has no held steps")

@@ -32,7 +32,7 @@ from pydantic import (
     model_validator,
 )
 
-from sim.specbase import StrictModel, quantity
+from sim.specbase import StrictModel, count, quantity
 
 if TYPE_CHECKING:
     from sim.character import Character
@@ -52,6 +52,10 @@ DEFAULT_CONTROLLER = "momentum"
 _STIFFNESS = quantity(0.001, 1e4, "s^-2")
 _DAMPING = quantity(0.001, 1e4, "s^-1")
 _WEIGHT = quantity(0.001, 1e4, "(weight)")
+#: The settings of the step controller a `momentum` block may set (only with `stepping: true`;
+#: the fields of `sim.controllers.stepping.SteppingParams`, whose defaults apply when absent).
+STEPPING_FIELDS: tuple[str, ...] = ("response_delay", "capture_margin", "step_duration",
+                                    "clearance", "max_step_fraction", "max_steps")
 
 
 @dataclass(frozen=True)
@@ -86,12 +90,21 @@ class MomentumConfig(ControllerConfig):
     """`controller: {type: momentum, <gain>: value, ...}`: the momentum QP
     (sim.controllers.momentum) with the named gains and weights overriding ControllerParams'
     defaults. `stepping: true` adds the step controller (sim.controllers.stepping): feet
-    planted while the capture point stays in the support, one step when it does not;
-    `response_delay` (s, default 0; the stepping paper's 0.2 is an option) is how long after
-    the capture point leaves the support the step starts; `feet_fixed` ({gain: value}, only with
-    stepping) overrides gains in the feet-fixed phase before a step only; absent, the step
-    controller's own default `{cop_box: 0.005, d_l: 20}` (300 N for 0.1 s on the pelvis then
-    needs no step); `{}` keeps the spec's gains there."""
+    planted while the capture point stays in the support, one step when it does not. Only with
+    stepping, each absent one taking the step controller's default:
+      * `response_delay` (s, 0 to 1, default 0; the stepping paper's 0.2 is an option): how
+        long after the capture point leaves the support the step starts;
+      * `capture_margin` (m, 0 to 0.3, default 0): how far beyond the toe or heel the capture
+        point may go before a step is due;
+      * `step_duration` (s, 0.1 to 1, default 0.3): the planned swing time;
+      * `clearance` (m, 0.01 to 0.3, default 0.05): the swing foot's lift at mid-swing;
+      * `max_step_fraction` (of the leg length, 0.1 to 1, default 0.7): the longest step,
+        measured from the stance foot's sole centre;
+      * `max_steps` (1 to 20, default 6): the steps a clip may take (the first and the
+        follow-ups);
+      * `feet_fixed` ({gain: value}): overrides gains in the feet-fixed phase before a step
+        only; absent, the step controller's own default `{cop_box: 0.005, d_l: 20}` (300 N for
+        0.1 s on the pelvis then needs no step); `{}` keeps the spec's gains there."""
 
     type: Literal["momentum"] = "momentum"
     stepping: bool = False
@@ -106,6 +119,11 @@ class MomentumConfig(ControllerConfig):
     b_p: _WEIGHT | None = None
     cop_box: quantity(0.001, 1.0, "m") | None = None
     response_delay: quantity(0.0, 1.0, "s") | None = None
+    capture_margin: quantity(0.0, 0.3, "m") | None = None
+    step_duration: quantity(0.1, 1.0, "s") | None = None
+    clearance: quantity(0.01, 0.3, "m") | None = None
+    max_step_fraction: quantity(0.1, 1.0, "(of the leg length)") | None = None
+    max_steps: count(1, 20, "steps") | None = None
     feet_fixed: dict[str, quantity(0.001, 1e4, "in the gain's unit")] | None = None
 
     schedules_gains: ClassVar[bool] = True
@@ -122,8 +140,9 @@ class MomentumConfig(ControllerConfig):
 
     @model_validator(mode="after")
     def _delay_needs_stepping(self) -> MomentumConfig:
-        if self.response_delay is not None and not self.stepping:
-            raise ValueError("response_delay: applies only with stepping: true")
+        for name in STEPPING_FIELDS:
+            if getattr(self, name) is not None and not self.stepping:
+                raise ValueError(f"{name}: applies only with stepping: true")
         if self.feet_fixed is not None:
             if not self.stepping:
                 raise ValueError("feet_fixed: applies only with stepping: true")
@@ -156,9 +175,8 @@ class MomentumConfig(ControllerConfig):
         if self.stepping:
             from sim.controllers.stepping import SteppingController, SteppingParams
 
-            kw: dict[str, Any] = {}
-            if self.response_delay is not None:
-                kw["response_delay"] = self.response_delay
+            kw: dict[str, Any] = {name: v for name in STEPPING_FIELDS
+                                  if (v := getattr(self, name)) is not None}
             if self.feet_fixed is not None:  # {}: the spec's gains
                 kw["feet_fixed_gains"] = tuple(sorted(self.feet_fixed.items()))
             step = SteppingParams(**kw)

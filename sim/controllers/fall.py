@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from sim.character import ROOT_DOF, Character
-from sim.controllers.base import Cmrt, Observation
+from sim.controllers.base import Cmrt, Controller, Observation
 
 FALL_STIFFNESS = 30.0  # N m / rad, the fall controller's low stiffness
 FALL_KD_STABILITY = 0.5  # explicit PD stays stable for kd dt / I below ~1: keep a margin
 
 
-class FallController:
+class FallController(Controller):
     """Low-stiffness, critically damped joint PD holding the pose at hand-over."""
 
     def __init__(self, character: Character, dt: float):
@@ -29,9 +29,7 @@ class FallController:
     def torques(self, hinge_q: np.ndarray, hinge_qd: np.ndarray) -> np.ndarray:
         return self.kp * (self.target - hinge_q) - self.kd * hinge_qd
 
-    # ---- the Controller protocol ----------------------------------------------------------
-    lost: str | None = None  # it never hands over
-
+    # ---- the Controller protocol (it never hands over: `lost` stays None) -------------------
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None:
         """Hold the pose of `observation` (the moment of hand-over); None holds the zero pose."""

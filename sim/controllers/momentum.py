@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from sim.character import ROOT_DOF, Character
-from sim.controllers.base import Cmrt, Observation
+from sim.controllers.base import Cmrt, Controller, Observation
 from sim.controllers.crouch import RATE_STEP, Crouch
 from sim.dynamics import (
     GRAVITY,
@@ -162,7 +162,7 @@ def _as_pair(value: object) -> tuple[float, float]:
     return float(value), 0.0
 
 
-class MomentumController:
+class MomentumController(Controller):
     """The momentum QP at `qp_rate` and inverse dynamics every step (the Controller protocol).
 
     Between QP solves it holds qdd*. Balance is lost (`lost` set) when the inverse dynamics'

@@ -132,7 +132,7 @@ def support_offset(ch: Character) -> float:
     return float(centre - ch.anchor0[ch.feet, 0].mean())
 
 
-class PdServo:
+class PdServo(Controller):
     """Parent-space or world-space PD on every hinge (the Controller protocol); see the module
     docstring for the laws, the gains and how the CMRT enters."""
 

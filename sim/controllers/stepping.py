@@ -20,8 +20,8 @@ Phases (`SteppingController.phase`):
   comes from inverse kinematics (`sim.ik.solve_ik`: stance foot fixed, CM at the IPM's, the
   swing foot on its path, flat) and the momentum QP balances it with the IPM's CM acceleration
   as its linear-momentum feed-forward, the CoP aimed at the pivot, the hard CoP (ZMP)
-  constraint `cop_margin` inside the stance foot, and the upper body's tracking weights scaled
-  down so that it, not the legs, keeps the ZMP in (`upper_weight_scale`).
+  constraint COP_MARGIN inside the stance foot, and the upper body's tracking weights scaled
+  down so that it, not the legs, keeps the ZMP in (UPPER_WEIGHT_SCALE).
 * "landed": the swing foot is flat on the ground (heel and toe within the contact margin,
   after half the swing). Both feet are in stance, the support runs from the rear heel to the
   front toe, and a feet-fixed momentum controller takes over: its legs' reference goes to the
@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from sim.character import ROOT_DOF, Character
-from sim.controllers.base import Cmrt, Observation
+from sim.controllers.base import Cmrt, Controller, Observation
 from sim.controllers.momentum import (
     FOOT_LIFT_LIMIT,
     WRENCH_VIOLATION_LIMIT,
@@ -72,14 +72,61 @@ MAX_REFERENCE_RATE = 15.0
 #: The feet-fixed phase's default gains over the spec's (`SteppingParams.feet_fixed_gains`):
 #: cop_box (m) and d_l (s^-1)
 FEET_FIXED_GAINS: tuple[tuple[str, float], ...] = (("cop_box", 0.005), ("d_l", 20.0))
-#: Rounds of the two-stage swing IK (CM by the stance legs, then the swing foot): the swing
-#: leg's move shifts the CM, which the second round corrects
-IK_STAGE_ROUNDS = 2
+# Fixed settings of the step (measured in docs/physics.md, "Stepping"); the ones a spec may set
+# are `SteppingParams`.
+#: m: the swing QP's CoP (ZMP) is kept this far inside the stance foot, and the IPM's pivot
+#: this far inside its heel and toe: the CoP the plan assumes is one the QP can realise.
+COP_MARGIN = 0.02
+#: s^-2, s^-1: the swing leg's tracking gains: stiffer than the spec's k_t, d_t so that the
+#: swing foot follows its planned path within the swing's 0.3 s.
+SWING_STIFFNESS = 400.0
+SWING_DAMPING = 40.0
+#: Tracking weights during the swing: the swing leg's hinges, the stance leg's, and the factor
+#: on every other hinge's weight. The upper body, not the legs, keeps the ZMP in while the
+#: legs follow the IK (the stepping paper's QP moves only the upper body).
+SWING_WEIGHT = 3.0
+STANCE_WEIGHT = 0.3
+UPPER_WEIGHT_SCALE = 0.1
+#: s after the planned touch-down without one: balance is lost.
+TOUCHDOWN_TIMEOUT = 0.25
+#: m: the stance foot's heel or toe lifted this high during the swing loses balance (the swing
+#: model holds the stance foot fixed while it rolls over its toe: 0.12 m is a 27 deg roll of
+#: the 0.27 m foot; a follow-up step of a 0.4 s push rolls it 8.1 cm).
+STANCE_LIFT_LIMIT = 0.12
+#: m: after landing, a heel or toe this high loses balance (the rear heel of a long step rises
+#: as the CM passes over the front foot): the feet-fixed limit.
+LANDED_LIFT_LIMIT = FOOT_LIFT_LIMIT
+#: s between the swing QP solves (feet fixed: 1/60 s): the swing's plan and IK change fast.
+SWING_QP_PERIOD = 0.005
+#: The swing foot cannot land before this fraction of the planned swing (it starts on the
+#: ground).
+MIN_SWING_FRACTION = 0.5
+#: s: the swing's support wrench may need a pulling ground this long before balance is lost
+#: (feet fixed: at once); a swing foot scuffing the ground (contacts the swing model does not
+#: have) gives such transients of a few ms.
+NO_NORMAL_FORCE_LIMIT = 0.03
+#: m: the CoP constraint of the QP after landing, inside the wider support.
+LANDED_COP_MARGIN = 0.02
+#: s: after touch-down the legs' reference goes from the landing posture to the held one over
+#: this time (no jump in the reference).
+SETTLE_TIME = 0.3
+#: s: time constant of the push estimate, the measured CM acceleration minus the one the
+#: controller's plan gives it (the push is not known to the controller), held over the rest of
+#: the swing by the landing's IPM; held at 0 for PUSH_HOLD s after a touch-down (the landing's
+#: impact is not a push).
+PUSH_FILTER = 0.02
+PUSH_HOLD = 0.05
+#: After landing, a capture point beyond the wider support by more than LANDED_CAPTURE_MARGIN
+#: (m) starts the next step at once (LANDED_MIN_TIME s after touch-down) instead of waiting for
+#: the feet-fixed controller's failure.
+LANDED_CAPTURE_MARGIN = 0.05
+LANDED_MIN_TIME = 0.02
 
 
 @dataclass(frozen=True)
 class SteppingParams:
-    """Settings of the step (units in the names' comments)."""
+    """The settings of the step a spec may set (`sim.controllers.config.MomentumConfig`, where
+    their ranges are); the rest are this module's constants."""
 
     #: s, from the capture point leaving the support to the step; the stepping paper's 0.2 s
     #: is an option (measured in docs/benchmarks.md, "Stepping")
@@ -87,77 +134,17 @@ class SteppingParams:
     capture_margin: float = 0.0  # m, how far beyond an edge the capture point may go unstepped
     step_duration: float = 0.3  # s, planned swing time
     clearance: float = 0.05  # m, the swing foot's lift at mid-swing
-    cop_margin: float = 0.02  # m, the QP's CoP (ZMP) kept this far inside the stance foot
-    swing_stiffness: float = 400.0  # s^-2, the swing leg's tracking stiffness
-    swing_damping: float = 40.0  # s^-1
-    swing_weight: float = 3.0  # tracking weight of the swing leg's hinges
-    stance_weight: float = 0.3  # tracking weight of the stance leg's hinges
-    upper_weight_scale: float = 0.1  # x the other hinges' tracking weights during the swing
-    max_step_fraction: float = 0.7  # longest step, as a fraction of the leg length
-    #: longest backward step, as a fraction of the leg length (0: `max_step_fraction`)
-    max_back_step_fraction: float = 0.0
-    capture_offset: float = 0.0  # m: the foot lands this far short of the capture point
-    touchdown_timeout: float = 0.25  # s after the planned touch-down: then balance is lost
-    #: m: the stance foot's heel or toe lifted this high during the swing loses balance (the
-    #: swing model holds the stance foot fixed while it rolls over its toe: 0.12 m is a
-    #: 27 deg roll of the 0.27 m foot; a follow-up step of a 0.4 s push rolls it 8.1 cm)
-    stance_lift_limit: float = 0.12
-    replan: bool = True  # re-plan the landing from the CM state at every swing QP solve
-    #: m: after landing, a heel or toe this high loses balance (the rear heel of a long step
-    #: rises as the CM passes over the front foot)
-    landed_lift_limit: float = FOOT_LIFT_LIMIT
-    swing_qp_period: float = 0.005  # s between the swing QP solves (feet-fixed: 1/60 s)
-    #: The swing foot cannot land before this fraction of the planned swing (it starts on the
-    #: ground)
-    min_swing_fraction: float = 0.5
-    #: s: the swing's support wrench may need a pulling ground this long before balance is
-    #: lost (feet fixed: at once); a swing foot scuffing the ground (contacts the swing
-    #: model does not have) gives such transients of a few ms
-    no_normal_force_limit: float = 0.03
+    #: longest step, as a fraction of the leg length, measured from the stance foot's sole
+    #: centre (the leg's reach), so a follow-up step may pass the stance foot
+    max_step_fraction: float = 0.7
     #: steps in one clip (the first and the follow-ups): a 300 N / 0.4 s push forward takes
     #: four (three long ones and one to settle)
     max_steps: int = 6
-    landed_cop_margin: float = 0.02  # m, the CoP constraint of the QP after landing (0: off)
-    settle_time: float = 0.3  # s, the legs' reference goes from touch-down to the held posture
-    #: True: the longest step (`max_step_fraction`) is measured from the stance foot's sole
-    #: centre (the leg's reach), so a follow-up step may pass the stance foot; False: from
-    #: where the swing foot lifted (the first step, feet side by side, is the same either way)
-    reach_from_stance: bool = True
-    #: s, time constant of the push estimate: the measured CM acceleration minus the one the
-    #: controller's plan gives it (the push is not known to the controller), held over the rest
-    #: of the swing by the landing's IPM (0: no estimate, the plain IPM)
-    push_filter: float = 0.02
-    #: s after touch-down during which the estimate is held at 0: the landing's impact is
-    #: not a push
-    push_hold: float = 0.05
-    #: True: after landing, a capture point beyond the wider support by more than
-    #: `landed_capture_margin` starts the next step at once (`landed_min_time` after
-    #: touch-down) instead of waiting for the feet-fixed controller's failure
-    landed_capture_step: bool = True
-    landed_capture_margin: float = 0.05  # m
-    landed_min_time: float = 0.02  # s
     #: Gains of the feet-fixed phase before a step over the spec's: by default the QP keeps its
     #: CoP 5 mm inside the foot and damps the CM at d_l 20, so the 300 N / 0.1 s push needs no
     #: step (the paper's Fig. 8); () keeps the spec's gains. The step and the landed
     #: controller keep the spec's gains (docs/physics.md, "Stepping").
     feet_fixed_gains: tuple[tuple[str, float], ...] = FEET_FIXED_GAINS
-    #: True: the swing's IK keeps the root's measured angle (the QP tracks hinge angles only,
-    #: so a root angle chosen by the IK is not realised and the swing foot lands rotated about
-    #: the hip by the difference); False: the IK moves the root's angle too
-    ik_hold_root_angle: bool = False
-    #: The root angle the swing's IK holds (with `ik_hold_root_angle`): "measured" (each
-    #: solve's), "lift_off" (at the step's start) or "reference" (the reference posture's,
-    #: feet flat)
-    ik_root_angle: str = "measured"
-    #: s^-2, s^-1: the stance leg's tracking gains during the swing (0: the spec's k_t, d_t);
-    #: with the stance foot flat its hinges fix the root's angle, so with
-    #: `ik_hold_root_angle` these hold the pelvis where the IK put it
-    stance_stiffness: float = 0.0
-    stance_damping: float = 0.0
-    #: True: the swing's IK in two stages, as in the stepping paper: the CM by the stance legs
-    #: (and the root's position), then the swing foot by the swing leg's hinges alone
-    ik_two_stage: bool = False
-    ik_damping: float = IK_DAMPING  # m^2, the swing IK's damped least squares
 
 
 @dataclass
@@ -246,7 +233,7 @@ class _PlannedMomentum(MomentumController):
         return ldot, (self.p_des - c[0]) * F[1] + c[1] * F[0]
 
 
-class SteppingController:
+class SteppingController(Controller):
     """The momentum controller with stepping (module doc); the Controller protocol, with
     `stance` (indices into the character's feet, None for all) read by the rollout."""
 
@@ -276,7 +263,7 @@ class SteppingController:
                                schedule.entries)
                  if self.params.feet_fixed_gains else schedule)
         self.feet_fixed = MomentumController(ch, fixed, trajectory, self.arrays, dt, mu)
-        self.qp_every = max(1, int(round(self.params.swing_qp_period / dt)))
+        self.qp_every = max(1, int(round(SWING_QP_PERIOD / dt)))
         base = schedule.base
         self._ref = _Reference(ch.n_hinges)
         #: Per swing foot: the swing QP's gains (CoP constraint on, that leg's tracking weight
@@ -287,22 +274,21 @@ class SteppingController:
             # QP moves only the upper body): its tracking weights are scaled down.
             leg_set = {j for leg in self.legs for j in leg}
             w_file = base.weight_vector(ch)
-            weights = {ch.hinge_names[j]: float(w_file[j]) * self.params.upper_weight_scale
+            weights = {ch.hinge_names[j]: float(w_file[j]) * UPPER_WEIGHT_SCALE
                        for j in range(ch.n_hinges) if j not in leg_set}
-            weights.update({ch.hinge_names[j]: self.params.stance_weight
+            weights.update({ch.hinge_names[j]: STANCE_WEIGHT
                             for f in range(nf) if f != sw for j in self.legs[f]})
-            weights.update({ch.hinge_names[j]: self.params.swing_weight for j in self.legs[sw]})
-            prm = replace(base, cop_box=self.params.cop_margin,
+            weights.update({ch.hinge_names[j]: SWING_WEIGHT for j in self.legs[sw]})
+            prm = replace(base, cop_box=COP_MARGIN,
                           weights={**base.weights, **weights})
             self.swing_qps.append(_PlannedMomentum(ch, GainScheduler(prm, []), self._ref,
                                                    self.arrays, dt, mu))
         self._held = _HeldLegs(trajectory)
-        landed = GainScheduler(replace(schedule.base, cop_box=self.params.landed_cop_margin),
-                               schedule.entries) if self.params.landed_cop_margin > 0 else schedule
+        landed = GainScheduler(replace(schedule.base, cop_box=LANDED_COP_MARGIN), schedule.entries)
         self.landed_qp = MomentumController(ch, landed, self._held, self.arrays, dt, mu)
         # The feet are apart after the step: share the wrench by weight, not by foot torques.
         self.landed_qp.feet_apart = True
-        self.landed_qp.foot_lift_limit = self.params.landed_lift_limit
+        self.landed_qp.foot_lift_limit = LANDED_LIFT_LIMIT
         self.steps: list[StepRecord] = []
         self.reset()
 
@@ -341,9 +327,8 @@ class SteppingController:
         self.c_ref = self.landed_qp.c_ref
         prm = self.params
         xi = capture_point(obs.c, obs.cd)
-        d_cp = step_direction(xi, obs.support, prm.landed_capture_margin)
-        early = (prm.landed_capture_step and d_cp != 0
-                 and t - (self.steps[-1].touchdown or t) >= prm.landed_min_time)
+        d_cp = step_direction(xi, obs.support, LANDED_CAPTURE_MARGIN)
+        early = d_cp != 0 and t - (self.steps[-1].touchdown or t) >= LANDED_MIN_TIME
         if self.landed_qp.lost is not None or early:
             # The feet-fixed balance over the wider support fails (typically the rear heel
             # lifts as the CM runs on over the front foot), or the capture point is already
@@ -361,15 +346,15 @@ class SteppingController:
     def _observe_push(self, obs: Observation, t: float) -> None:
         """Update the push estimate: the measured CM acceleration (a finite difference of the
         CM velocity over one step) minus the one the controller's last plan gave it, low-passed
-        over `push_filter` s, and held at 0 for `push_hold` s after a touch-down. Only the
+        over PUSH_FILTER s, and held at 0 for PUSH_HOLD s after a touch-down. Only the
         measured state enters: the force is unknown here."""
-        tau_f = self.params.push_filter
+        tau_f = PUSH_FILTER
         cdx = float(obs.cd[0])
         landing = (self.phase == "landed" and self.steps
-                   and t - (self.steps[-1].touchdown or t) < self.params.push_hold)
+                   and t - (self.steps[-1].touchdown or t) < PUSH_HOLD)
         if landing:
             self.push = 0.0
-        elif tau_f > 0.0 and self._cd_prev is not None:
+        elif self._cd_prev is not None:
             raw = (cdx - self._cd_prev) / self.dt - self._a_plan
             self.push += min(self.dt / tau_f, 1.0) * (raw - self.push)
         self._cd_prev = cdx
@@ -377,8 +362,7 @@ class SteppingController:
     def _planned_accel(self, obs: Observation, qdd: np.ndarray, b_L0: float) -> None:
         """The horizontal CM acceleration (m/s^2) the active QP's qdd gives (b_L0: its
         velocity-product term when known)."""
-        if self.params.push_filter > 0.0:
-            self._a_plan = (float(obs.A_L[0] @ qdd) + b_L0) / self.character.total_mass
+        self._a_plan = (float(obs.A_L[0] @ qdd) + b_L0) / self.character.total_mass
 
     # ---- phases ---------------------------------------------------------------------------
     def _feet_fixed(self, obs: Observation, t: float) -> np.ndarray:
@@ -415,25 +399,21 @@ class SteppingController:
                  for f in self.support_feet)
         # The IPM pivots where the CoP will be: under the capture point as far as the stance
         # foot reaches (its toe or heel edge when the capture point is beyond it).
-        pivot = min(max(capture_point(obs.c, obs.cd), lo + prm.cop_margin), hi - prm.cop_margin)
+        pivot = min(max(capture_point(obs.c, obs.cd), lo + COP_MARGIN), hi - COP_MARGIN)
         # The leg's reach is measured from the stance foot furthest along the step.
-        self._reach = (direction * max(direction * float(body_point(alpha, p, int(a.feet[f]),
-                                                                    a.sole_local[f])[0])
-                                       for f in self.support_feet)
-                       if prm.reach_from_stance else None)
+        self._reach = direction * max(direction * float(body_point(alpha, p, int(a.feet[f]),
+                                                                   a.sole_local[f])[0])
+                                      for f in self.support_feet)
         plan = plan_step(t, obs.c, obs.cd, pivot, (float(sole[0]), float(sole[1])), direction,
-                         prm.step_duration, prm.clearance,
-                         self._max_step(direction),
-                         capture_offset=prm.capture_offset, reach_from=self._reach,
-                         push=self._push_for_plan())
+                         prm.step_duration, prm.clearance, self._max_step(),
+                         reach_from=self._reach, push=self.push)
         self._plant = [(body_point(alpha, p, int(a.feet[f]), a.sole_local[f]),
                         float(alpha[int(a.feet[f])])) for f in self.support_feet]
         self.steps.append(StepRecord(self._detected, t, direction, plan,
-                                     push_estimate=self._push_for_plan(),
+                                     push_estimate=self.push,
                                      c0=(float(obs.c[0]), float(obs.c[1])),
                                      cd0=(float(obs.cd[0]), float(obs.cd[1]))))
         self._plan = plan
-        self._root0 = float(obs.q[2])
         self.phase = "swing"
         self.stance = self.support_feet
         self._k = 0
@@ -443,10 +423,6 @@ class SteppingController:
         self.swing_qp = self.swing_qps[sw]
         self.swing_qp.reset(None, None)
         self.swing_qp.p_des = pivot
-
-    def _push_for_plan(self) -> float:
-        """The push estimate the landing's IPM holds (m/s^2; 0 with the estimate off)."""
-        return self.push if self.params.push_filter > 0.0 else 0.0
 
     def _targets(self, t: float) -> list[Target]:
         """IK targets of the swing at time t: stance feet where they were planted, flat; the
@@ -466,62 +442,31 @@ class SteppingController:
         out.append(Target("angle", (0.0,), b))
         return out
 
-    def _swing_ik(self, q0: np.ndarray, t: float, dofs: list[int]) -> IkResult:
-        """The swing's whole-body IK posture at t (see `ik_two_stage`)."""
-        a = self.arrays
-        limits = self.character.limits
-        targets = self._targets(t)
-        if not self.params.ik_two_stage:
-            return solve_ik(q0, a, limits, targets, dofs, damping=self.params.ik_damping)
-        swing = [ROOT_DOF + j for j in self.legs[self.swing]]
-        body = [d for d in dofs if d not in swing]
-        q = q0
-        for _ in range(IK_STAGE_ROUNDS):
-            q = solve_ik(q, a, limits, targets[:-2], body, damping=self.params.ik_damping).q
-            q = solve_ik(q, a, limits, targets[-2:], swing, damping=self.params.ik_damping).q
-        return solve_ik(q, a, limits, targets, [0], max_iterations=0)  # (the residual only)
+    def _swing_ik(self, q0: np.ndarray, t: float) -> IkResult:
+        """The swing's whole-body IK posture at t (every leg hinge and the root)."""
+        return solve_ik(q0, self.arrays, self.character.limits, self._targets(t),
+                        self._leg_dofs(), damping=IK_DAMPING)
 
-    def _max_step(self, direction: int) -> float:
-        """m: the longest step along `direction` (+1 forward, -1 backward)."""
-        prm = self.params
-        frac = (prm.max_back_step_fraction if direction < 0 and prm.max_back_step_fraction > 0
-                else prm.max_step_fraction)
-        return frac * self.leg_length
+    def _max_step(self) -> float:
+        """m: the longest step."""
+        return self.params.max_step_fraction * self.leg_length
 
-    def _root_angle_target(self, t: float) -> float:
-        """rad: the root angle the swing's IK holds (`ik_root_angle` "lift_off" or
-        "reference": the reference posture's with the stance foot flat)."""
-        if self.params.ik_root_angle == "lift_off":
-            return self._root0
-        q_r, _qd, _qdd = self.trajectory(t)
-        f = self.support_feet[0]
-        return -float(sum(q_r[j] for j in self.legs[f]))
-
-    def _leg_dofs(self, hold_root_angle: bool = False) -> list[int]:
-        root = [0, 1] if hold_root_angle else [0, 1, 2]
-        return root + [ROOT_DOF + j for leg in self.legs for j in leg]
+    def _leg_dofs(self) -> list[int]:
+        return [0, 1, 2] + [ROOT_DOF + j for leg in self.legs for j in leg]
 
     def _swing(self, obs: Observation, t: float) -> np.ndarray:
-        prm = self.params
         rec = self.steps[-1]
         a = self.arrays
         lo, hi = obs.support
         if self._k % self.qp_every == 0:
-            if self._k > 0 and prm.replan:
-                self._plan = replan_step(self._plan, t, obs.c, obs.cd,
-                                         self._max_step(self._plan.direction),
-                                         prm.capture_offset, self._reach,
-                                         self._push_for_plan())
+            if self._k > 0:  # a push may still act: the landing follows the measured CM
+                self._plan = replan_step(self._plan, t, obs.c, obs.cd, self._max_step(),
+                                         self._reach, self.push)
                 rec.replans.append((t, self._plan.land[0], self._plan.capture_at_land))
             plan = self._plan
             h = self.qp_every * self.dt
-            dofs = self._leg_dofs(prm.ik_hold_root_angle)
-            q_start = obs.q
-            if prm.ik_hold_root_angle and prm.ik_root_angle != "measured":
-                q_start = obs.q.copy()
-                q_start[2] = self._root_angle_target(t)
-            ik_now = self._swing_ik(q_start, t, dofs)
-            ik_next = self._swing_ik(ik_now.q, t + h, dofs)
+            ik_now = self._swing_ik(obs.q, t)
+            ik_next = self._swing_ik(ik_now.q, t + h)
             alpha, p, _o = forward_kinematics(ik_now.q, a.parent, a.a_par, a.a_chi)
             sole = body_point(alpha, p, int(a.feet[self.swing]), a.sole_local[self.swing])
             fx, fy = plan.foot(t)
@@ -540,13 +485,8 @@ class SteppingController:
             qdd_r = np.zeros_like(q_r)
             sp = self.swing_qp.schedule.base
             sw_leg = self.legs[self.swing]
-            qdd_r[sw_leg] = ((prm.swing_stiffness - sp.k_t) * (q_r[sw_leg] - hq[sw_leg])
-                             + (prm.swing_damping - sp.d_t) * (qd_r[sw_leg] - hqd[sw_leg]))
-            if prm.stance_stiffness > 0.0:
-                for f in self.support_feet:
-                    st = self.legs[f]
-                    qdd_r[st] += ((prm.stance_stiffness - sp.k_t) * (q_r[st] - hq[st])
-                                  + (prm.stance_damping - sp.d_t) * (qd_r[st] - hqd[st]))
+            qdd_r[sw_leg] = ((SWING_STIFFNESS - sp.k_t) * (q_r[sw_leg] - hq[sw_leg])
+                             + (SWING_DAMPING - sp.d_t) * (qd_r[sw_leg] - hqd[sw_leg]))
             self._ref.value = (q_r, qd_r, qdd_r)
             pos, vel, acc = plan.path.state(t)
             # The ground supplies the IPM's acceleration less the push's.
@@ -572,14 +512,14 @@ class SteppingController:
         self._pulling = self._pulling + 1 if code == WRENCH_NO_NORMAL_FORCE else 0
         lift = max(obs.points[:, 1].tolist())
         rec.stance_lift = max(rec.stance_lift, lift)
-        if (self._pulling * self.dt > prm.no_normal_force_limit
+        if (self._pulling * self.dt > NO_NORMAL_FORCE_LIMIT
                 or self._violations * self.dt > WRENCH_VIOLATION_LIMIT):
             self.lost = f"step_{WRENCH_REASONS[code]}"
-        elif lift > prm.stance_lift_limit:
+        elif lift > STANCE_LIFT_LIMIT:
             self.lost = "step_foot_lift"
-        elif t - plan.t0 >= prm.min_swing_fraction * plan.duration and self._touching(obs):
+        elif t - plan.t0 >= MIN_SWING_FRACTION * plan.duration and self._touching(obs):
             self._land(obs, t)
-        elif t - plan.t0 > plan.duration + prm.touchdown_timeout:
+        elif t - plan.t0 > plan.duration + TOUCHDOWN_TIMEOUT:
             self.lost = "step_no_touchdown"
         return tau
 
@@ -619,7 +559,7 @@ class SteppingController:
         self._held.start = obs.q[ROOT_DOF:][legs].copy()
         self._held.rate = obs.qd[ROOT_DOF:][legs].copy()
         self._held.t0 = t
-        self._held.blend = self.params.settle_time
+        self._held.blend = SETTLE_TIME
         rec.touchdown = t
         self.phase = "landed"
         self.stance = None

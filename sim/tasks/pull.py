@@ -35,6 +35,7 @@ import numpy as np
 from sim.dynamics import ModelArrays, forward_kinematics
 from sim.props import PropDef
 from sim.specbase import StrictModel, count, quantity
+from sim.standing import standing_state
 from sim.tasks.base import Pose, Task, TaskConfig, check_pose, pose_offsets
 from sim.trajectory import MotionDef
 
@@ -114,8 +115,6 @@ class PullConfig(TaskConfig):
 def grip_point(character: Any, pose: dict[int, float]) -> tuple[float, float]:
     """The hands' centre (m, world) in the standing state held in `pose` (the rollout's own
     standing solution, before the contacts' static sink of a fraction of a millimetre)."""
-    from sim.rollout import standing_state  # here: sim.rollout imports the task registry
-
     arrays = ModelArrays.from_character(character)
     q = standing_state(character, arrays, pose)
     alpha, p, _o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)

@@ -1,4 +1,4 @@
-"""SimObjective against the real simulator (skipped only while sim.clip does not exist)."""
+"""SimObjective against the real simulator."""
 
 from __future__ import annotations
 
@@ -7,12 +7,10 @@ import pickle
 import numpy as np
 import pytest
 
-pytest.importorskip("sim.clip")
-
-from optim import objective as objective_mod  # noqa: E402
-from optim.objective import SimObjective, evaluate_params  # noqa: E402
-from optim.spline import flat_params  # noqa: E402
-from sim.spec import parse_spec  # noqa: E402
+from optim import objective as objective_mod
+from optim.objective import SimObjective, evaluate_params
+from optim.spline import flat_params
+from sim.spec import parse_spec
 
 
 @pytest.fixture(scope="module")

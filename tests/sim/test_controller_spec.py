@@ -59,6 +59,20 @@ def test_no_controller_and_empty_dict_are_the_default_momentum():
      "response_delay: applies only with stepping: true"),
     ({"type": "momentum", "stepping": True, "response_delay": -0.1},
      "controller.response_delay", "must be from 0 to 1 s, got -0.1"),
+    ({"type": "momentum", "max_steps": 2}, "controller",
+     "max_steps: applies only with stepping: true"),
+    ({"type": "momentum", "stepping": True, "max_steps": 0}, "controller.max_steps",
+     "must be from 1 to 20 steps, got 0"),
+    ({"type": "momentum", "stepping": True, "max_steps": 2.5}, "controller.max_steps",
+     "valid integer"),
+    ({"type": "momentum", "stepping": True, "capture_margin": -0.01},
+     "controller.capture_margin", "must be from 0 to 0.3 m, got -0.01"),
+    ({"type": "momentum", "stepping": True, "step_duration": 0.05},
+     "controller.step_duration", "must be from 0.1 to 1 s, got 0.05"),
+    ({"type": "momentum", "stepping": True, "clearance": 0.5},
+     "controller.clearance", "must be from 0.01 to 0.3 m, got 0.5"),
+    ({"type": "momentum", "stepping": True, "max_step_fraction": 1.5},
+     "controller.max_step_fraction", "must be from 0.1 to 1 (of the leg length), got 1.5"),
     ({"cop_box": 0.5}, "controller.cop_box", "below half the support length"),
     ({"type": "momentum", "feet_fixed": {"d_l": 20.0}}, "controller",
      "feet_fixed: applies only with stepping: true"),
@@ -85,3 +99,25 @@ def test_rollout_builds_the_momentum_controller_from_the_block():
         assert sim.controller.schedule.base.d_l == 7.0  # the default stays
     finally:
         sim.close()
+
+
+def test_stepping_settings_reach_the_step_controller():
+    """Every stepping setting of the block is the step controller's; an absent one keeps its
+    default, and a block that sets none dumps as before."""
+    from sim.controllers.stepping import SteppingParams
+    from sim.rollout import Rollout
+
+    block = {"type": "momentum", "stepping": True, "response_delay": 0.2, "capture_margin": 0.01,
+             "step_duration": 0.35, "clearance": 0.06, "max_step_fraction": 0.6, "max_steps": 3}
+    spec = parse_spec(_bend(block))
+    assert spec.controller.model_dump() == block
+    sim = Rollout(spec)
+    try:
+        got = sim.controller.params
+    finally:
+        sim.close()
+    want = {k: v for k, v in block.items() if k not in ("type", "stepping")}
+    assert {k: getattr(got, k) for k in want} == want
+    assert got.feet_fixed_gains == SteppingParams().feet_fixed_gains
+    plain = parse_spec(_bend({"type": "momentum", "stepping": True}))
+    assert plain.controller.model_dump() == {"type": "momentum", "stepping": True}

@@ -11,8 +11,9 @@ import pytest
 from sim.character import ROOT_DOF, load_character
 from sim.controllers.crouch import LIMIT_MARGIN, Crouch
 from sim.dynamics import ModelArrays, body_point, forward_kinematics
-from sim.rollout import Rollout, standing_state
+from sim.rollout import Rollout
 from sim.spec import parse_spec
+from sim.standing import standing_state
 from sim.trajectory import ease
 
 #: m: the reached CM height change equals the asked one to this (the secant's tolerance is 1e-9).

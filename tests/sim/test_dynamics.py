@@ -28,7 +28,7 @@ from sim.dynamics import (
     step_model,
 )
 from sim.physics import DT, Physics
-from sim.rollout import standing_state
+from sim.standing import standing_state
 
 FLIGHT_HEIGHT = 5.0  # m, root height for free-floating tests: far from the ground
 

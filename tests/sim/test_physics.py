@@ -24,7 +24,7 @@ from sim.physics import (
     Physics,
 )
 from sim.props import Hanging, PropDef
-from sim.rollout import standing_state
+from sim.standing import standing_state
 
 FAR = 20.0  # m: props this far ahead of the character do not touch it
 

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import yaml
 
-from sim.clip import Simulator
 from sim.physics import DT
 from sim.rollout import Rollout, evaluate, fall_penalty
 from sim.spec import GainSchedule, TaskSpec, load_spec, parse_spec
@@ -299,7 +298,7 @@ def test_run_twice_on_one_simulator_is_identical(push_sim, push_forward):
 
 def test_same_spec_same_objective_in_process_and_in_fresh_process(push_forward):
     spec = load_spec(EXAMPLES / "push.yaml")
-    fresh = evaluate(spec)  # a new Simulator in this process
+    fresh = evaluate(spec)  # a new Rollout in this process
     _same(fresh, push_forward)
     # A separate interpreter (spawn, not fork: nothing inherited from this process).
     ctx = multiprocessing.get_context("spawn")
@@ -350,6 +349,23 @@ def test_scaled_character_stands():
     assert np.nanmax(np.abs(ev.traces.error)) <= sim.support_length / 4
 
 
-def test_simulator_is_the_rollout():
-    """Callers written before the reshape (optim, worker, cli) use sim.clip.Simulator."""
-    assert Simulator is Rollout
+def test_extra_props_join_the_world_and_leave_the_clip_standing():
+    """`Rollout(spec, extra_props=...)`: the props are in the physics beside the task's (none
+    for a quiet stance), resting clear of the character; without them the world is the
+    task's."""
+    from sim.props import PropDef
+
+    spec = parse_spec({"name": "props", "task": {"type": "quiet_stance"},
+                       "clip": {"preparation": 0.0, "duration": 0.3, "decay": 0.0}})
+    box = PropDef("box0", "box", (0.3, 0.2), 10.0, (0.8, 0.1))
+    plain, loaded = Rollout(spec), Rollout(spec, extra_props=[box])
+    try:
+        assert not plain.physics.props and "box0" not in plain.physics.pose_names()
+        assert "box0" in loaded.physics.pose_names()
+        start = loaded.physics.prop("box0").pose()
+        ev = loaded.run()
+        assert not ev.fell
+        assert loaded.physics.prop("box0").pose()[0] == pytest.approx(start[0], abs=1e-3)
+    finally:
+        plain.close()
+        loaded.close()

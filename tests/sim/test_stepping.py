@@ -9,7 +9,7 @@ import pytest
 
 from sim.character import ROOT_DOF
 from sim.controllers.base import stance_terms
-from sim.controllers.stepping import FEET_FIXED_GAINS, SteppingController, SteppingParams
+from sim.controllers.stepping import FEET_FIXED_GAINS, SteppingController
 from sim.dynamics import (
     GRAVITY,
     body_point,
@@ -21,7 +21,6 @@ from sim.dynamics import (
 )
 from sim.ik import Target, leg_hinges, solve_ik
 from sim.ipm import capture_point, pendulum_path, plan_step, replan_step, step_direction
-from sim.physics import DT, FRICTION_MU
 from sim.rollout import Rollout
 from sim.spec import parse_spec
 
@@ -313,17 +312,11 @@ def test_stepping_is_deterministic(stepped):
     np.testing.assert_array_equal(ev.traces.cm, ev2.traces.cm)
 
 
-def _push_rollout(force: float, duration: float, decay: float,
-                  params: SteppingParams | None = None) -> Rollout:
+def _push_rollout(force: float, duration: float, decay: float) -> Rollout:
     spec = {"name": "step", "clip": {"preparation": 1.0, "duration": duration, "decay": decay},
             "task": {**PUSH, "force": force, "duration": duration},
             "controller": {"type": "momentum", "stepping": True}}
-    sim = Rollout(parse_spec(spec))
-    if params is not None:
-        sim.controller = SteppingController(sim.character, sim.controller.schedule,
-                                            sim.trajectory, sim.arrays, dt=DT, mu=FRICTION_MU,
-                                            params=params)
-    return sim
+    return Rollout(parse_spec(spec))
 
 
 def test_push_estimate_at_lift_off_is_the_push_still_acting():

@@ -10,8 +10,9 @@ import pytest
 
 from sim.character import load_character
 from sim.dynamics import ModelArrays, forward_kinematics
-from sim.rollout import Rollout, standing_state
+from sim.rollout import Rollout
 from sim.spec import parse_spec
+from sim.standing import standing_state
 
 MODEL = "sumo"
 MASS = 180.0  # kg, paper 6.1.6
