@@ -164,6 +164,13 @@ def same_as_uninterrupted(api: httpx.Client, job_id: str, timeout: float = 180) 
     wait_job(api, again, timeout)
     a, b = result_of(api, job_id), result_of(api, again)
     same = a == b
+    if not same:
+        for key in ("status", "best_objective", "params"):
+            if a[key] != b[key]:
+                print(f"  {key}: {a[key]!r} vs {b[key]!r}")
+        for ga, gb in zip(a["generations"], b["generations"], strict=False):
+            if ga != gb:
+                print(f"  generation {ga['iteration']}: {ga} vs {gb}")
     print(f"[{job['spec']['name']}] result equal to the uninterrupted run with seed "
           f"{job['seed']}: {same} (best {a['best_objective']!r} vs {b['best_objective']!r})")
     return same

@@ -553,14 +553,7 @@ class LocalTopology(BaseTopology):
 
     def warm_up(self) -> None:
         """Compile/load the simulator's numba cache once, before workers time anything."""
-        code = ("from sim.spec import parse_spec; from optim.objective import SimObjective; "
-                "from optim.spline import flat_params; import json, sys; "
-                "s = parse_spec(json.loads(sys.argv[1])); SimObjective(s)(flat_params(s))")
-        spec = {"name": "warm", "task": {"type": "quiet_stance"}, "clip": {"preparation": 0.0,
-                "duration": 0.1, "decay": 0.0}}
-        import json
-
-        subprocess.run([sys.executable, "-c", code, json.dumps(spec)], cwd=ROOT, check=True,
+        subprocess.run([sys.executable, "-c", *WARM_UP], cwd=ROOT, check=True,
                        env=self.env_for("worker"), timeout=600)
 
     def wait_workers_ready(self, count: int, timeout: float = 60) -> None:
@@ -590,6 +583,15 @@ class LocalTopology(BaseTopology):
         return "\n".join(f"--- {p.name} ---\n{p.tail(60)}"
                          for ps in self.procs.values() for p in ps)
 
+
+#: `python -c` arguments that compile the simulator's numba kernels into the cache of the
+#: machine or container it runs on (a quiet stance of 0.1 s), so that no worker's first
+#: evaluation pays that (tens of seconds on a loaded machine: past the tests' time limit).
+WARM_UP = ["from sim.spec import parse_spec; from optim.objective import SimObjective; "
+           "from optim.spline import flat_params; import json, sys; "
+           "s = parse_spec(json.loads(sys.argv[1])); SimObjective(s)(flat_params(s))",
+           json.dumps({"name": "warm", "task": {"type": "quiet_stance"},
+                       "clip": {"preparation": 0.0, "duration": 0.1, "decay": 0.0}})]
 
 #: Application services whose environment the override file extends.
 APP_SERVICES = ("api", "worker")
@@ -711,6 +713,7 @@ class ComposeTopology(BaseTopology):
         self.extra: dict[str, dict[str, str]] = {name: {} for name in APP_SERVICES}
         self.procs: dict[str, list[Container]] = {}
         self.cut_links: list[str] = []
+        self.warmed: set[str] = set()  # worker containers whose numba cache is compiled
         self._write_override()
 
     # -- docker ------------------------------------------------------------------------------
@@ -821,9 +824,15 @@ class ComposeTopology(BaseTopology):
 
     def scale(self, name: str, count: int) -> None:
         """`count` running replicas of `name`: compose starts stopped ones before creating new
-        ones. --no-deps: a worker must not bring the api up behind the tests' back."""
+        ones. --no-deps: a worker must not bring the api up behind the tests' back. A worker
+        container never warmed gets its numba cache compiled (WARM_UP) as local mode does."""
         self.compose("up", "-d", "--no-deps", "--no-recreate", "--no-build", "--scale",
                      f"{name}={count}", name)
+        if name == "worker":
+            for c in self._containers(name):
+                if c.alive and c.id not in self.warmed:
+                    self.docker("exec", c.id, "python", "-c", *WARM_UP, timeout=600)
+                    self.warmed.add(c.id)
 
     def wait_workers_ready(self, count: int, timeout: float = 120) -> None:
         self._wait(lambda: sum(c.ready() for c in self._containers("worker")) >= count,
