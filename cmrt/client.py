@@ -380,7 +380,14 @@ class Client:
         if timeout is not None:
             kwargs["timeout"] = timeout
         try:
-            r = self._http.request(method, path, **kwargs)
+            try:
+                r = self._http.request(method, path, **kwargs)
+            except httpx.RemoteProtocolError:
+                # A kept-alive connection the server closed as the request went out (its
+                # idle timeout): a read is sent once more on a new connection.
+                if method not in ("GET", "HEAD"):
+                    raise
+                r = self._http.request(method, path, **kwargs)
         except httpx.TimeoutException:
             raise ServiceUnreachableError(f"the CMRT service at {self.url} did not answer "
                                      f"{method} {path} in time") from None

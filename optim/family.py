@@ -597,8 +597,11 @@ def family_checks(
     basis = None
     variance: list[float] = []
     if len(members) >= fs.k + 1:
-        b = build_basis([members[v] for v in sorted(members)], k=fs.k, family=fs.family)
-        basis, variance = b.to_dict(), [float(x) for x in b.variance_explained]
+        try:
+            b = build_basis([members[v] for v in sorted(members)], k=fs.k, family=fs.family)
+            basis, variance = b.to_dict(), [float(x) for x in b.variance_explained]
+        except BasisError:  # every member the same CMRT: nothing to reduce (basis None)
+            pass
 
     rows: list[Table2Row] = []
     for v in fs.leave_out:

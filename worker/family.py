@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from optim.errors import OptimError
 from optim.executors import Executor, PoolExecutor
 from optim.family import (
     PROBES,
@@ -88,7 +89,20 @@ class FamilyDriver:
         return self._probe_executor
 
     def advance(self, family_id: str) -> str:
-        """One step of the family (see module docstring); returns its status after it."""
+        """One step of the family (see module docstring); returns its status after it. A
+        domain error of the plan's arithmetic (a basis or an interpolation that cannot be
+        made from these members) fails the family with its message: the same members would
+        give it again at every step."""
+        try:
+            return self._advance(family_id)
+        except OptimError as err:
+            log.error("family %s: %s", family_id, err)
+            with self._lock:
+                self._results.pop(family_id, None)
+                self._cancel_jobs(self.repo.family_jobs(family_id))
+                return self.repo.finish_family(family_id, FAILED, error=str(err)).status
+
+    def _advance(self, family_id: str) -> str:
         with self._lock:  # one step at a time in this process; other processes may race
             fam = self.repo.get_family(family_id)
             if fam.terminal:

@@ -383,3 +383,43 @@ def test_family_submit_show_watch_and_the_python_client(service, tmp_path):
     assert bad.returncode == 2 and "leave_out[0]" in bad.stderr, bad.stderr
     assert _cli(service, "family", "show", "nope").returncode == 2
     assert len(Client(service).families()) == before
+
+
+def test_a_read_on_a_connection_the_server_closed_is_sent_again():
+    """A kept-alive connection closed by the server as a GET goes out (its idle timeout) is
+    retried once on a new connection; a POST is not (it may have been received)."""
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    seen: list[str] = []
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802
+            seen.append(self.path)
+            if len(seen) == 1:  # the first request: close without an answer
+                self.close_connection = True
+                return
+            body = b'{"status": "ok"}'
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        do_POST = do_GET  # noqa: N815
+
+        def log_message(self, *args):
+            pass
+
+    srv = HTTPServer(("127.0.0.1", 0), Handler)
+    t = threading.Thread(target=srv.serve_forever, daemon=True)
+    t.start()
+    try:
+        with Client(f"http://127.0.0.1:{srv.server_port}") as c:
+            assert c.health() == {"status": "ok"} and seen == ["/health", "/health"]
+            seen.clear()
+            with pytest.raises(ServiceUnreachableError):
+                c._request("POST", "/jobs", json_body={})
+            assert seen == ["/jobs"]
+    finally:
+        srv.shutdown()

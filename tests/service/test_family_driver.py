@@ -116,3 +116,25 @@ def test_a_failed_run_fails_the_family_naming_it(repo, config, executor):
     assert FamilyDriver(repo, probe_executor=SerialExecutor()).advance(fid) == FAILED
     fam = repo.get_family(fid)
     assert run_id in fam.error and "boom" in fam.error
+
+
+def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, config, executor):
+    """Members that are all the same CMRT (an objective blind to the value): the reduced
+    run's basis cannot be made; the family fails naming why instead of retrying for ever."""
+    fid = _create(repo, _family(strategy="independent"))
+
+    def same(fs: Any, value: float) -> LineFamily:
+        return LineFamily(value=1.0, base=0.1, slope=0.2)
+
+    flat = LocalPoolExecutor(config, pool=SerialExecutor(),
+                             objective_factory=lambda spec: same(None, 0.0))
+    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, flat, config).run(),
+                          probe_executor=SerialExecutor(), objective_for=same)
+    status = FAMILY_RUNNING
+    for _ in range(50):
+        status = driver.advance(fid)
+        if status != FAMILY_RUNNING:
+            break
+    flat.close()
+    fam = repo.get_family(fid)
+    assert status == FAILED and "identical" in fam.error, fam.error
