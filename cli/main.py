@@ -214,12 +214,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 # ---- serve / worker ---------------------------------------------------------------------------
-def cmd_serve(args: argparse.Namespace) -> int:
-    """The HTTP API with its job drivers under uvicorn (embedded default without a broker)."""
-    import uvicorn
-
+def _process_settings(args: argparse.Namespace) -> tuple[Any, str]:
+    """The settings of a long-running process (`serve`, `driver`) with its --workers, and its
+    log level, logging set up on stderr."""
     from cmrt.settings import get_settings
-    from service.app import create_app
 
     settings = get_settings()
     if args.workers is not None:
@@ -227,6 +225,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
     level = (args.log_level or settings.log_level).upper()
     logging.basicConfig(level=level, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return settings, level
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    """The HTTP API with its job drivers under uvicorn (embedded default without a broker)."""
+    import uvicorn
+
+    from service.app import create_app
+
+    settings, level = _process_settings(args)
     try:
         app = create_app(settings)
     except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
@@ -242,17 +250,11 @@ def cmd_driver(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from cmrt.settings import get_settings
     from store import open_repository
     from worker.executors import make_generation_executor
     from worker.runner import JobRunner
 
-    settings = get_settings()
-    if args.workers is not None:
-        settings = settings.model_copy(update={"workers": args.workers})
-    level = (args.log_level or settings.log_level).upper()
-    logging.basicConfig(level=level, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    settings, level = _process_settings(args)
     try:
         repo = open_repository(settings.database_url)
         executor = make_generation_executor(settings)

@@ -102,6 +102,17 @@ def _arrays(r: OptimizationResult) -> tuple[float, np.ndarray, np.ndarray, np.nd
     return r.length, np.asarray(r.knot_times, float), np.asarray(r.values, float), vy
 
 
+def bracket(xs: Sequence[float], value: float) -> tuple[float, float]:
+    """The two sampled values `value` is interpolated between (sorted, distinct `xs`, at
+    least two): its neighbours on either side, or the two nearest at an end of the range."""
+    if value < xs[0]:
+        return xs[0], xs[1]
+    if value > xs[-1]:
+        return xs[-2], xs[-1]
+    j = int(np.searchsorted(xs, value))
+    return xs[j - 1], xs[j]
+
+
 def interpolate(
     results: Sequence[OptimizationResult],
     value: float,
@@ -157,13 +168,7 @@ def interpolate(
             f"{key} = {value:g} is outside the sampled range [{xs[0]:g}, {xs[-1]:g}] of family "
             f"{fam!r}; extrapolating past it must be asked for (extrapolate)"
         )
-    if value < xs[0]:
-        a, b = xs[0], xs[1]
-    elif value > xs[-1]:
-        a, b = xs[-2], xs[-1]
-    else:
-        j = int(np.searchsorted(xs, value))
-        a, b = xs[j - 1], xs[j]
+    a, b = bracket(xs, value)
     w = (value - a) / (b - a)
     La, kta, vxa, vya = _arrays(best[a])
     Lb, ktb, vxb, vyb = _arrays(best[b])
@@ -196,4 +201,4 @@ def interpolate(
     return out
 
 
-__all__ = ["InterpolatedCmrt", "interpolate"]
+__all__ = ["InterpolatedCmrt", "bracket", "interpolate"]

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from optim.errors import BasisError, InterpolationError, ParamsError
-from optim.interpolate import interpolate
+from optim.interpolate import bracket, interpolate
 from optim.pca import DEFAULT_K, build_basis
 from optim.result import OptimizationResult
 from optim.spline import CmrtSpline, encode, sample_curve
@@ -179,13 +179,7 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
     if value in best:
         other = xs[1] if xs[0] == value else xs[0]
         return [best[value].id, best[other].id]
-    if value < xs[0]:
-        a, b = xs[0], xs[1]
-    elif value > xs[-1]:
-        a, b = xs[-2], xs[-1]
-    else:
-        j = int(np.searchsorted(xs, value))
-        a, b = xs[j - 1], xs[j]
+    a, b = bracket(xs, value)
     return [best[a].id, best[b].id]
 
 
