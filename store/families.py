@@ -18,9 +18,6 @@ from sqlalchemy.exc import IntegrityError
 from store.errors import NotFound
 from store.models import Family, FamilyRun, Job
 from store.records import (
-    CANCELLED,
-    FAILED,
-    FAMILY_DONE,
     FAMILY_RUNNING,
     FAMILY_TERMINAL,
     FamilyRecord,
@@ -226,5 +223,4 @@ class SqlFamilies(SqlBase, FamilyRepository):
         return self.get_family(family_id)
 
 
-__all__ = ["FAMILY_DONE", "FAMILY_RUNNING", "FamilyRepository", "SqlFamilies", "CANCELLED",
-           "FAILED"]
+__all__ = ["FamilyRepository", "SqlFamilies"]

@@ -50,6 +50,7 @@ from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
 from store import Repository
 from store.records import CANCELLED, FAILED, FAMILY_DONE
+from worker.library import store_basis
 
 log = logging.getLogger(__name__)
 
@@ -172,18 +173,9 @@ class FamilyDriver:
     def _start(self, family_id: str, fs: FamilySpec, run: Any, runs: list[Any],
                results: dict[str, OptimizationResult]) -> None:
         st = run_start(fs, run, runs, results)
-        basis_id = None
-        if st.basis is not None:
-            b = st.basis
-            basis_id = self.repo.add_basis(
-                family=fs.family, k=b.k, mean=[float(v) for v in b.mean],
-                components=[[float(v) for v in row] for row in b.components],
-                variance_explained=[float(v) for v in b.variance_explained],
-                members=[f"{family_id}/{rid}" for rid in sorted(results) if rid != run.id],
-                box={"score_lo": [float(v) for v in b.score_lo],
-                     "score_hi": [float(v) for v in b.score_hi],
-                     "margin": b.margin, "cmrt": b.cmrt, "content_id": b.id},
-            )
+        basis_id = None if st.basis is None else store_basis(
+            self.repo, st.basis, fs.family,
+            [f"{family_id}/{rid}" for rid in sorted(results) if rid != run.id])
         start = None if st.x0 is None else {"from": st.start,
                                             "x0": [float(v) for v in np.asarray(st.x0)]}
         spec = st.spec

@@ -10,7 +10,7 @@ import numpy as np
 
 from optim.errors import BasisError, InterpolationError, ParamsError
 from optim.interpolate import bracket, interpolate
-from optim.pca import DEFAULT_K, build_basis
+from optim.pca import DEFAULT_K, Basis, build_basis
 from optim.result import OptimizationResult
 from optim.spline import CmrtSpline, encode, sample_curve
 from sim.spec import TaskSpec
@@ -189,13 +189,18 @@ def build_library_basis(repo: Repository, family: str, k: int = DEFAULT_K) -> st
     if not members:
         raise BasisError(f"no library CMRTs of family {family!r}")
     basis = build_basis([record_to_result(r) for r in members], k=k, family=family)
+    return store_basis(repo, basis, family, [r.id for r in members])
+
+
+def store_basis(repo: Repository, basis: Basis, family: str, members: list[str]) -> str:
+    """Keep a PCA basis in the store (`basis_from_record` reads it back); returns its id."""
     return repo.add_basis(
         family=family,
         k=basis.k,
         mean=[float(v) for v in basis.mean],
         components=[[float(v) for v in row] for row in basis.components],
         variance_explained=[float(v) for v in basis.variance_explained],
-        members=[r.id for r in members],
+        members=members,
         box={
             "score_lo": [float(v) for v in basis.score_lo],
             "score_hi": [float(v) for v in basis.score_hi],

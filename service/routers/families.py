@@ -20,8 +20,7 @@ from worker import admission
 router = APIRouter(prefix="/families", tags=["families"])
 
 
-def _progress(fam: Any, runs: list[Any], jobs: dict[str, Any], probes_done: bool
-              ) -> dict[str, int]:
+def _progress(runs: list[Any], jobs: dict[str, Any], probes_done: bool) -> dict[str, int]:
     done = sum(1 for r in runs if r.id in jobs and jobs[r.id].terminal)
     done += 1 if probes_done else 0
     running = sum(1 for j in jobs.values() if j.status == "running")
@@ -72,7 +71,7 @@ def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
         rows.append(row)
     out.update(
         spec=fam.spec, runs=rows,
-        progress=_progress(fam, runs, jobs, repo.family_probes(fam.id) is not None),
+        progress=_progress(runs, jobs, repo.family_probes(fam.id) is not None),
         members=None if report is None else report["members"],
         basis=None if report is None else report["basis"],
         checks=None if report is None else report["checks"],
