@@ -4,21 +4,38 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
+
+# A package registry that does not answer for a while (a name that does not resolve, a reset
+# connection) must not fail a fresh machine's set-up: each download step is retried after
+# 30, 60 and 120 s before set-up gives up. pip and apt already retry single requests; this
+# covers an outage longer than their own few seconds of retries.
+retry() {
+    local wait=30 attempt=1
+    until "$@"; do
+        if [ "$attempt" -ge 4 ]; then
+            echo "setup: '$*' failed $attempt times; giving up" >&2
+            return 1
+        fi
+        echo "setup: '$*' failed (attempt $attempt); retrying in ${wait}s" >&2
+        sleep "$wait"
+        attempt=$((attempt + 1)); wait=$((wait * 2))
+    done
+}
 ODE_SO_GLOB="/usr/lib/python3/dist-packages/ode.cpython-311-*.so"
 
 if ! compgen -G "$ODE_SO_GLOB" >/dev/null; then
     echo "setup: installing Debian's python3-pyode"
     SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
-    $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-pyode libode-dev >/dev/null
+    retry $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive retry $SUDO apt-get install -y -qq python3-pyode libode-dev >/dev/null
 fi
 
 # The browser tests drive Debian's Chromium through playwright (a browser download fails here).
 if [ ! -x /usr/bin/chromium ]; then
     echo "setup: installing Debian's chromium"
     SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
-    $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
+    retry $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive retry $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
 fi
 
 if [ ! -x .venv/bin/python ]; then
@@ -36,8 +53,8 @@ echo "$(pwd)/.venv/pyode" > "$SITE/pyode.pth"
 STAMP=.venv/.installed
 if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ]; then
     echo "setup: installing the project into .venv"
-    .venv/bin/pip install -q --upgrade pip
-    .venv/bin/pip install -q -e '.[dev]'
+    retry .venv/bin/pip install -q --upgrade pip
+    retry .venv/bin/pip install -q -e '.[dev]'
     touch "$STAMP"
 fi
 .venv/bin/python -c 'import ode, numba, cma' || { echo "setup: imports failed" >&2; exit 1; }
