@@ -34,10 +34,9 @@ from sim.spec import TaskSpec
 from store import EvaluationClaim, EvaluationRecord, Repository
 from store.records import PENDING
 from worker.evaluation import (
+    JobSpecs,
     ObjectiveFactory,
-    SpecCache,
     attempts_exhausted_message,
-    default_objective_factory,
     outcome_fields,
 )
 from worker.fairpool import FairPool
@@ -127,11 +126,11 @@ class LocalPoolExecutor(GenerationExecutor):
         if pool is None:
             pool = FairPool(config.workers, time_limit=config.eval_time_limit)
         self.pool: Any = pool if isinstance(pool, FairPool) else _BatchPool(pool)
-        self.cache = SpecCache(objective_factory or default_objective_factory)
+        self.cache = JobSpecs(objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
     def evaluate(self, repo, job_id, spec, generation, population, check):
-        _, objective = self.cache.get(repo, job_id, spec)
+        _, objective = self.cache.get(repo, job_id)
         while True:
             check()
             todo: list[EvaluationClaim] = []
