@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cmrt.canonical import canonical_json, text_hash
 from optim.outcome import EvalOutcome
 from optim.spline import decode
 from sim.spec import CanonicalSpec, TaskSpec, canonical_spec, stored_spec, text_spec
@@ -136,11 +137,21 @@ def clear_cache() -> None:
     SPECS.clear()
 
 
+def _canonical(spec: TaskSpec | CanonicalSpec | Mapping[str, Any]) -> CanonicalSpec:
+    if isinstance(spec, CanonicalSpec):
+        return spec
+    if isinstance(spec, Mapping):  # a spec document (validated upstream): parsed on a miss
+        text = canonical_json(spec)
+        hash = text_hash(text)
+        return SPECS.get(hash, lambda: text_spec(text, hash, "<objective spec>"))
+    return canonical_spec(spec)
+
+
 class SimObjective:
     """Picklable objective for one spec; see module docstring."""
 
-    def __init__(self, spec: TaskSpec | CanonicalSpec) -> None:
-        canonical = SPECS.put(spec if isinstance(spec, CanonicalSpec) else canonical_spec(spec))
+    def __init__(self, spec: TaskSpec | CanonicalSpec | Mapping[str, Any]) -> None:
+        canonical = SPECS.put(_canonical(spec))
         self.spec_hash = canonical.hash
         self._canonical: CanonicalSpec | None = canonical  # in this process: never parsed
         self._text: str | None = None
@@ -210,7 +221,7 @@ class SimObjective:
 
 
 def evaluate_params(
-    spec: TaskSpec | CanonicalSpec, params: Sequence[float] | np.ndarray | None,
+    spec: TaskSpec | CanonicalSpec | Mapping[str, Any], params: Sequence[float] | np.ndarray | None,
     traces: bool = False,
 ) -> Evaluation:
     """Simulate `spec` with the CMRT decoded from `params` (None: without CMRT)."""
