@@ -137,7 +137,7 @@ def bare_pool(spec, warm, workers: int):
         pool.map(fn, warm)
 
         def measure(batch) -> tuple[float, float, dict[str, float]]:
-            procs = list(pool._pool._processes)  # private, but the only handle on the pids
+            procs = pool.pids()
             acct = _CpuAccount({"children": procs})
             t0 = time.perf_counter()
             outs = pool.map(fn, batch)

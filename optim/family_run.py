@@ -16,8 +16,9 @@
   * `reuse`: state folders of other families; a cold run of this plan (from the flat spline,
     main rules) whose exact spec and seed a finished cold run there has is the same
     computation, so its result is copied instead of run (logged).
-  * candidates are never cut early (`optimize(cut=False)`): the pool's early-stop bound is
-    one slot shared by every batch in flight.
+  * each member's generations cut their certain last early (`optim.rankcut`), as every
+    `optimize` does: the pool posts a bound to the one slot running that candidate, so the
+    batches in flight of the other members never read it.
 Objectives are `SimObjective` of the member's spec under the main rules (one simulator per
 value, whatever the run's rules); `objective_for` replaces them (tests: synthetic ones).
 """
@@ -174,7 +175,7 @@ def run_family(
         assert run.value is not None
         res = optimize(st.spec, executor, seed=fs.seed, x0=st.x0, basis=st.basis,
                        checkpoint=state_dir / f"{run.id}.ckpt", resume=True,
-                       progress=lambda _s: stop.is_set(), cut=False,
+                       progress=lambda _s: stop.is_set(),
                        objective=objective_for(fs, run.value))
         if res.stop_rule == CANCELLED:
             return None  # its checkpoint holds the generations made; the next resume goes on

@@ -1,23 +1,23 @@
 """What-if simulations: one clip of a spec with a chosen CMRT, run in a process of the API's
 own small pool (`SimulationPool`) so a crash or a diverging ODE never takes the server down.
 
-`run_clip` is the picklable body that runs in the pool process; `SimulationPool` bounds how many
-clips run or wait at once (more: 503 with Retry-After) and how long one may take
-(`Settings.eval_time_limit`), and turns every way a clip can fail into a `failed` outcome with
-the reason: the simulation diverged (sim's DivergenceError), the process died, the time limit.
+`run_clip` is the picklable body that runs in the pool process; `SimulationPool`, over the one
+process pool (`optim.procpool.SlotPool`: its processes end with the API, even when it is
+killed), bounds how many clips run or wait at once (more: 503 with Retry-After) and how long one
+may take (`Settings.eval_time_limit`: past it the clip's process is killed, the others run on),
+and turns every way a clip can fail into a `failed` outcome with the reason: the simulation
+diverged (sim's DivergenceError), the process died, the time limit.
 """
 
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures as cf
 import logging
 import math
-import os
 import threading
 from typing import Any
 
-from optim.executors import _exit_with_parent
+from optim.procpool import SlotPool, TimeLimitError, WorkerDiedError
 from sim.errors import SimError
 
 log = logging.getLogger("cmrt.service.simulations")
@@ -90,29 +90,27 @@ class SimulationBusyError(Exception):
 
 
 class SimulationPool:
-    """A process pool of `workers` processes for what-if clips (created on first use)."""
+    """A process pool of `workers` processes for what-if clips (started on first use)."""
 
     def __init__(self, workers: int = 1, time_limit: float = 600.0) -> None:
         self.workers = workers
         self.time_limit = time_limit
-        self._pool: cf.ProcessPoolExecutor | None = None
+        self._pool: SlotPool | None = None
         self._lock = threading.Lock()
         self._in_flight = 0
 
-    def _get(self) -> cf.ProcessPoolExecutor:
+    def _get(self) -> SlotPool:
         with self._lock:
-            if self._pool is None:  # workers end with this process, even when it is killed
-                self._pool = cf.ProcessPoolExecutor(
-                    self.workers, initializer=_exit_with_parent, initargs=(os.getpid(),))
+            if self._pool is None:
+                # forked from a fork server, never from this threaded server process
+                self._pool = SlotPool(self.workers, start_method="forkserver",
+                                      time_limit=self.time_limit)
             return self._pool
 
-    def _discard(self, pool: cf.ProcessPoolExecutor) -> None:
-        with self._lock:
-            if self._pool is pool:
-                self._pool = None
-        for p in list(getattr(pool, "_processes", {}).values()):
-            p.kill()  # a clip past its time limit (or a broken pool) is not waited for
-        pool.shutdown(wait=False, cancel_futures=True)
+    def pids(self) -> list[int]:
+        """The pool's processes (started ones)."""
+        pool = self._pool
+        return [] if pool is None else pool.pids()
 
     async def run(self, spec_data: dict[str, Any], params: list[float] | None, *, traces: bool,
                   frames: bool) -> dict[str, Any]:
@@ -127,17 +125,13 @@ class SimulationPool:
                 raise SimulationBusyError
             self._in_flight += 1
         try:
-            pool = self._get()
-            fut = asyncio.get_running_loop().run_in_executor(
-                pool, fn, *args)
+            task = self._get().submit(fn, *args)
             try:
-                return await asyncio.wait_for(fut, timeout=self.time_limit)
-            except TimeoutError:
-                self._discard(pool)
+                return await asyncio.wrap_future(task.future)
+            except TimeLimitError:
                 return {"status": "failed",
                         "error": f"the clip ran past the time limit of {self.time_limit:g} s"}
-            except cf.process.BrokenProcessPool:
-                self._discard(pool)
+            except WorkerDiedError:
                 log.error("simulation: the pool process died")
                 return {"status": "failed", "error": "the simulation process died (crash or "
                                                      "out of memory)"}
@@ -149,4 +143,4 @@ class SimulationPool:
         with self._lock:
             pool, self._pool = self._pool, None
         if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+            pool.close()

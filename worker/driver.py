@@ -125,17 +125,22 @@ class StoreEvaluator:
     """`optim.loop.CandidateEvaluator` of a job: the candidates become pending evaluations in
     the store (idempotent), the generation executor resolves them, and the stored rows become
     outcomes. A failed row (attempts exhausted) or a stored candidate that differs from the one
-    asked again after a restart fails the job (JobFailedError)."""
+    asked again after a restart fails the job (JobFailedError). `cut_margin`: the generations'
+    certain last may stop early (`optim.rankcut`) where the executor can; the final evaluation
+    is never cut."""
 
-    def __init__(self, driver: JobDriver, spec: TaskSpec) -> None:
-        self.driver, self.spec = driver, spec
+    def __init__(self, driver: JobDriver, spec: TaskSpec,
+                 cut_margin: float | None = None) -> None:
+        self.driver, self.spec, self.cut_margin = driver, spec, cut_margin
 
     def evaluate(self, generation: int, candidates: Any) -> list[EvalOutcome]:
         d = self.driver
         d.check(force=True)
         full = [list(map(float, p)) for p in candidates]
         d.repo.put_pending_evaluations(d.job_id, generation, full)
-        rows = d.executor.evaluate(d.repo, d.job_id, self.spec, generation, len(full), d.check)
+        cut = None if generation == FINAL_GENERATION else self.cut_margin
+        rows = d.executor.evaluate(d.repo, d.job_id, self.spec, generation, len(full), d.check,
+                                   cut_margin=cut)
         if len(rows) != len(full):
             raise JobFailedError(f"generation {generation}: {len(rows)} evaluations stored for "
                                  f"{len(full)} candidates")
@@ -157,7 +162,7 @@ def _stored_outcome(row: Any) -> EvalOutcome:
     return EvalOutcome(objective=float(row.objective), fell=bool(row.fell),
                        cpu_seconds=float(row.cpu_seconds or 0.0), error=d.get("error"),
                        fall_time=d.get("fall_time"), fall_direction=d.get("fall_direction"),
-                       task_success=d.get("task_success"))
+                       task_success=d.get("task_success"), cut=bool(d.get("cut", False)))
 
 
 class StoreRunState:
@@ -327,7 +332,7 @@ class JobDriver:
         if self._took_over is not None:
             self._log_takeover(opt.iterations)
         t_job = time.monotonic()
-        evaluator = StoreEvaluator(self, spec)
+        evaluator = StoreEvaluator(self, spec, opt.cut_margin)
         stop_rule = run_generations(opt, self.space, evaluator, state)
         # A driver may have died after adding the entry or the result: the final evaluations
         # are stored, so asking them again costs no simulation.

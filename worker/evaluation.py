@@ -1,5 +1,7 @@
-"""One candidate evaluation against the store: the body of the Celery task (and of the local
-pool path's bookkeeping).
+"""Candidate evaluations against the store: `run_candidates`, the one function that claims,
+evaluates and records candidates, on both paths: the body of the Celery tasks (each candidate
+evaluated in this process, claimed just before it runs) and the embedded service's local pool
+(`worker.executors.LocalPoolExecutor`: every candidate claimed, then evaluated in the pool).
 
 Idempotent and attempt-counted, with two store calls per candidate:
   1. `claim_evaluation` atomically counts an attempt at the pending (job, generation, index)
@@ -35,6 +37,7 @@ from typing import Any, TypeVar
 import numpy as np
 from sqlalchemy.exc import DBAPIError, OperationalError
 
+from optim.errors import EvaluationError
 from optim.executors import EvalOutcome, evaluate_one
 from sim.spec import TaskSpec, parse_spec
 from store import NotFound, Repository
@@ -45,6 +48,19 @@ log = logging.getLogger(__name__)
 
 ObjectiveFactory = Callable[[TaskSpec], Callable[[np.ndarray], Any]]
 T = TypeVar("T")
+#: How `run_candidates` gets claimed candidates evaluated elsewhere (a process pool):
+#: `pool_run(objective, params, on_result)` calls `on_result(position, outcome | EvaluationError)`
+#: once per candidate (an EvaluationError: its process died, the attempt counts).
+PoolRun = Callable[[Any, list[np.ndarray], Callable[[int, Any], None]], None]
+
+
+class JobFailedError(Exception):
+    """The job cannot continue; the message is stored as its error."""
+
+
+class DriverInterruptError(Exception):
+    """The driver must stop now (cancel requested, lease lost, shutdown); see worker.driver.
+    Its message says why; "shutdown" (a graceful stop) gives back the attempts it cut short."""
 
 
 def default_objective_factory(spec: TaskSpec) -> Callable[[np.ndarray], Any]:
@@ -105,6 +121,8 @@ def outcome_fields(out: EvalOutcome, worker: str | None = None) -> dict[str, Any
     for key in OUTCOME_DETAILS:
         if getattr(out, key) is not None:
             details[key] = getattr(out, key)
+    if out.cut:  # the objective is a lower bound: the certain last of its generation
+        details["cut"] = True
     if worker:
         details["worker"] = worker
     return {
@@ -158,6 +176,101 @@ def with_reconnect(call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
             delay = min(2.0 * delay, 2.0)
 
 
+def run_candidates(
+    repo: Repository,
+    job_id: str,
+    generation: int,
+    indices: list[int],
+    *,
+    max_attempts: int,
+    cache: SpecCache,
+    spec: TaskSpec | None = None,
+    pool_run: PoolRun | None = None,
+    worker_name: str | None = None,
+    notify: Callable[[str, int, int], Any] | None = None,
+) -> list[dict[str, Any]]:
+    """Claim, evaluate and store the candidates `indices` of (job, generation); one small JSON
+    dict per candidate, in order (see the module docstring).
+
+    Without `pool_run` each candidate is claimed just before it runs in this process (a worker
+    killed mid-task has counted an attempt only for the candidate it was running), after the
+    fault-injection hooks (worker.faults). With `pool_run` every candidate is claimed, then the
+    claimed ones go to the pool together; one whose process died keeps its counted attempt and
+    stays pending (the caller claims it again), and a `DriverInterruptError("shutdown")` gives
+    back the attempts of the candidates it left unfinished (`Repository.release_attempt`).
+    `notify(job_id, generation, index)` is called once a candidate is resolved in the store
+    (stored here, or found resolved already): the driver's wake-up (worker.notify). `spec`: the
+    job's parsed spec when the caller has it (else read from the store once per process)."""
+    results: dict[int, dict[str, Any]] = {}
+    node = worker_name or socket.gethostname()
+    loaded: list[tuple[TaskSpec, Any]] = []
+
+    def objective() -> tuple[TaskSpec, Any]:
+        if not loaded:
+            loaded.append(with_reconnect(cache.get, repo, job_id, spec))
+        return loaded[0]
+
+    def claim(index: int) -> np.ndarray | None:
+        """The candidate's params once claimed, or None (resolved: see `results`)."""
+        try:
+            c = with_reconnect(repo.claim_evaluation, job_id, generation, index)
+        except NotFound:
+            results[index] = {"status": "missing"}
+            return None
+        if c.status != PENDING:
+            results[index] = {"status": c.status, "skipped": True}
+        elif c.attempts > max_attempts:
+            msg = attempts_exhausted_message(generation, index, c.attempts - 1)
+            with_reconnect(repo.fail_evaluation, job_id, generation, index, msg)
+            log.error("job %s: %s", job_id, msg)
+            results[index] = {"status": "failed", "attempts": c.attempts}
+        elif c.job_terminal:  # cancelled or failed meanwhile: don't spend CPU on it
+            results[index] = {"status": "skipped", "job_status": c.job_status}
+            return None
+        else:
+            results[index] = {"status": "claimed", "attempts": c.attempts}
+            return np.asarray(c.params, dtype=float)
+        if notify is not None:
+            notify(job_id, generation, index)
+        return None
+
+    def record(index: int, out: EvalOutcome | EvaluationError) -> None:
+        if isinstance(out, EvaluationError):  # its process died: the attempt counts
+            log.warning("job %s generation %d candidate %d: %s", job_id, generation, index, out)
+            results[index] = {"status": "lost", "error": str(out)}
+            return
+        changed = with_reconnect(repo.store_result, job_id, generation, index,
+                                 **outcome_fields(out, node))
+        if notify is not None:
+            notify(job_id, generation, index)
+        results[index] = {"status": DONE if changed else "duplicate",
+                          "objective": float(out.objective),
+                          "attempts": results[index]["attempts"], "changed": changed}
+
+    if pool_run is None:
+        for index in indices:
+            params = claim(index)
+            if params is None:
+                continue
+            spec_, fn = objective()
+            faults.maybe_crash(spec_.name, generation, index)
+            faults.maybe_delay(spec_.name, generation, index)
+            record(index, evaluate_one(fn, params))
+    else:
+        todo = [(i, p) for i in indices if (p := claim(i)) is not None]
+        if todo:
+            try:
+                pool_run(objective()[1], [p for _, p in todo],
+                         lambda pos, out: record(todo[pos][0], out))
+            except DriverInterruptError as why:
+                if str(why) == "shutdown":  # a graceful stop is not a crash: un-count them
+                    for i, _ in todo:
+                        if results[i]["status"] == "claimed":
+                            repo.release_attempt(job_id, generation, i)
+                raise
+    return [results[i] for i in indices]
+
+
 def run_candidate(
     repo: Repository,
     job_id: str,
@@ -169,39 +282,6 @@ def run_candidate(
     worker_name: str | None = None,
     notify: Callable[[str, int, int], Any] | None = None,
 ) -> dict[str, Any]:
-    """Evaluate one stored candidate and upsert its result; returns a small JSON dict.
-    `notify(job_id, generation, index)` is called once the candidate is resolved in the store
-    (stored here, or found resolved already): the driver's wake-up (worker.notify)."""
-    try:
-        claim = with_reconnect(repo.claim_evaluation, job_id, generation, index)
-    except NotFound:
-        return {"status": "missing"}
-    if claim.status != PENDING:
-        if notify is not None:
-            notify(job_id, generation, index)
-        return {"status": claim.status, "skipped": True}
-    if claim.attempts > max_attempts:
-        msg = attempts_exhausted_message(generation, index, claim.attempts - 1)
-        with_reconnect(repo.fail_evaluation, job_id, generation, index, msg)
-        log.error("job %s: %s", job_id, msg)
-        if notify is not None:
-            notify(job_id, generation, index)
-        return {"status": "failed", "attempts": claim.attempts}
-    if claim.job_terminal:  # cancelled or failed meanwhile: don't spend CPU on it
-        return {"status": "skipped", "job_status": claim.job_status}
-    spec, objective = with_reconnect(cache.get, repo, job_id)
-    faults.maybe_crash(spec.name, generation, index)
-    faults.maybe_delay(spec.name, generation, index)
-    out = evaluate_one(objective, np.asarray(claim.params, dtype=float))
-    changed = with_reconnect(
-        repo.store_result,
-        job_id, generation, index, **outcome_fields(out, worker_name or socket.gethostname()),
-    )
-    if notify is not None:
-        notify(job_id, generation, index)
-    return {
-        "status": DONE if changed else "duplicate",
-        "objective": float(out.objective),
-        "attempts": claim.attempts,
-        "changed": changed,
-    }
+    """`run_candidates` of one candidate, in this process (the single-candidate Celery task)."""
+    return run_candidates(repo, job_id, generation, [index], max_attempts=max_attempts,
+                          cache=cache, worker_name=worker_name, notify=notify)[0]

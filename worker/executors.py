@@ -2,16 +2,19 @@
 candidates are already stored as pending evaluations (keyed by job, generation, index) and the
 executor returns once every one of them is resolved (done or failed).
 
-- `LocalPoolExecutor` (embedded default, no broker): evaluates in this process' `FairPool`
-  (worker.fairpool: round robin between jobs, a stopped job's running candidates dropped) and
-  upserts the results itself; attempts are counted the same way, so a candidate that kills its
-  pool process fails its job after `max_attempts`; attempts cut short by a graceful stop
-  (shutdown) are given back (`release_attempt`).
+- `LocalPoolExecutor` (embedded default, no broker): `worker.evaluation.run_candidates` (the
+  Celery task's own function: claim, attempts, fail, record) with the evaluations in this
+  process' `FairPool` (worker.fairpool: round robin between jobs, a stopped job's running
+  candidates dropped), so a candidate that kills its pool process fails its job after
+  `max_attempts`; attempts cut short by a graceful stop (shutdown) are given back
+  (`release_attempt`). A generation's certain last candidate stops early (`optim.rankcut`),
+  as on the command line.
 - `CeleryExecutor`: sends one `evaluate_candidate(job_id, generation, index)` task per pending
   candidate and waits by polling the store's counts (never `.get()`); lost messages are sent
   again (idempotent, see `CeleryExecutor.evaluate`), so a message lost with a broker restart or
   a killed worker never hangs a job; if the broker stays unreachable for `broker_deadline` s the
-  job fails with a clear error.
+  job fails with a clear error. No candidate is cut early here: the bound would have to reach
+  a simulation running in another machine's worker process, mid-run (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -25,22 +28,21 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import numpy as np
-
 from cmrt.settings import Settings
 from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
 from sim.spec import TaskSpec
-from store import EvaluationClaim, EvaluationRecord, Repository
-from store.records import PENDING
+from store import EvaluationRecord, Repository
+from store.records import DONE, PENDING
 from worker.evaluation import (
+    DriverInterruptError,
+    JobFailedError,
     ObjectiveFactory,
     SpecCache,
-    attempts_exhausted_message,
     default_objective_factory,
-    outcome_fields,
+    run_candidates,
 )
-from worker.fairpool import FairPool
+from worker.fairpool import POLL_S, FairPool
 from worker.notify import FALLBACK_POLL_S, NoticeWaiter
 
 #: While the workers' notices announce every result, the driver still reads the store this
@@ -48,14 +50,6 @@ from worker.notify import FALLBACK_POLL_S, NoticeWaiter
 STORE_READ_S = 2.0
 
 log = logging.getLogger(__name__)
-
-
-class JobFailedError(Exception):
-    """The job cannot continue; the message is stored as its error."""
-
-
-class DriverInterruptError(Exception):
-    """The driver must stop now (cancel requested, lease lost, shutdown); see driver."""
 
 
 #: Called by executors while they wait: raises DriverInterruptError when the driver must stop.
@@ -75,9 +69,12 @@ class GenerationExecutor(ABC):
         generation: int,
         population: int,
         check: Checkpoint,
+        cut_margin: float | None = None,
     ) -> list[EvaluationRecord]:
         """Resolve every pending evaluation of (job, generation); return them in index order.
-        `spec` is the job's parsed spec (the driver parses it once)."""
+        `spec` is the job's parsed spec (the driver parses it once). `cut_margin`
+        (`optim.rankcut.cut_margin`; None: no cut) lets the generation's certain last candidate
+        stop early where the executor can (the run stays identical)."""
 
     def stats(self) -> dict[str, Any]:
         return {}
@@ -97,10 +94,11 @@ class _BatchPool:
     def workers(self) -> int:
         return self.executor.workers
 
-    def run(self, job, fn, batch, check, on_result) -> None:
+    def run(self, job, fn, batch, check, on_result, *, cut_margin=None, done=()) -> None:
         check()
-        try:
-            outs: list[Any] = self.executor.map(fn, list(batch))
+        try:  # the executor's bound knows only the batch: no cut beside stored values
+            outs: list[Any] = self.executor.map(fn, list(batch),
+                                                cut_margin=None if done else cut_margin)
         except EvaluationError as err:
             outs = [err] * len(batch)
         for i, out in enumerate(outs):
@@ -130,46 +128,27 @@ class LocalPoolExecutor(GenerationExecutor):
         self.cache = SpecCache(objective_factory or default_objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
-    def evaluate(self, repo, job_id, spec, generation, population, check):
-        _, objective = self.cache.get(repo, job_id, spec)
+    def evaluate(self, repo, job_id, spec, generation, population, check, cut_margin=None):
+        """Rounds of `run_candidates` over the pending candidates until none is left (a
+        candidate whose process died stays pending and is claimed again, its attempts counted).
+        The cut needs every other candidate's value: the stored ones are passed along."""
         while True:
             check()
-            todo: list[EvaluationClaim] = []
-            for r in repo.evaluations(job_id, generation):
-                if r.status != PENDING:
-                    continue
-                claim = repo.claim_evaluation(job_id, generation, r.index)
-                if claim.status != PENDING:
-                    continue
-                if claim.attempts > self.config.max_attempts:
-                    repo.fail_evaluation(job_id, generation, r.index,
-                                         attempts_exhausted_message(generation, r.index,
-                                                                    claim.attempts - 1))
-                    continue
-                todo.append(claim)
-            if not todo:
-                return repo.evaluations(job_id, generation)
-            settled: set[int] = set()  # stored, or its process died (the attempt counts)
+            rows = repo.evaluations(job_id, generation)
+            pending = [r.index for r in rows if r.status == PENDING]
+            if not pending:
+                return rows
+            done = [float(r.objective) for r in rows if r.status == DONE]
+            margin = cut_margin if len(done) + len(pending) == population else None
 
-            def on_result(i: int, out: Any, todo=todo, settled=settled) -> None:
-                c = todo[i]
-                if isinstance(out, EvaluationError):  # its process died: the attempt counts
-                    log.warning("job %s generation %d candidate %d: %s", job_id, generation,
-                                c.index, out)
-                    settled.add(i)
-                    return
-                repo.store_result(job_id, generation, c.index, **outcome_fields(out, self.node))
-                settled.add(i)
+            def pool_run(fn, xs, on_result, done=done, margin=margin):
+                self.pool.run(job_id, fn, xs, check, on_result, cut_margin=margin, done=done)
 
-            try:
-                self.pool.run(job_id, objective, [np.asarray(c.params, dtype=float)
-                                                  for c in todo], check, on_result)
-            except DriverInterruptError as why:
-                if str(why) == "shutdown":  # a graceful stop is not a crash: un-count them
-                    for i, c in enumerate(todo):
-                        if i not in settled:
-                            repo.release_attempt(job_id, generation, c.index)
-                raise
+            out = run_candidates(repo, job_id, generation, pending,
+                                 max_attempts=self.config.max_attempts, cache=self.cache,
+                                 spec=spec, pool_run=pool_run, worker_name=self.node)
+            if all(r["status"] == "skipped" for r in out):  # the job ended meanwhile
+                time.sleep(POLL_S)  # until the driver's checkpoint reads why
 
     def stats(self):
         return {"workers": self.pool.workers}
@@ -360,7 +339,7 @@ class CeleryExecutor(GenerationExecutor):
         except self._errors as err:  # the claims skip them anyway (the job is terminal)
             log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
 
-    def evaluate(self, repo, job_id, spec, generation, population, check):
+    def evaluate(self, repo, job_id, spec, generation, population, check, cut_margin=None):
         """Send the unresolved candidates, at most `dispatch_window` unresolved at a time (so
         jobs share the queue fairly), and wait for the store to hold all their results.
 

@@ -117,7 +117,7 @@ from optim.executors import PoolExecutor
 from optim.synthetic import Sphere
 pool = PoolExecutor(2)
 pool.map(Sphere(), [np.zeros(2), np.ones(2)])
-print(" ".join(str(p) for p in pool._pool._processes), flush=True)
+print(" ".join(str(p) for p in pool.pids()), flush=True)
 time.sleep(600)
 """
 

@@ -105,7 +105,7 @@ class _DyingPool(SerialExecutor):
     def __init__(self):
         self.maps = 0
 
-    def map(self, fn, batch):
+    def map(self, fn, batch, cut_margin=None):
         from optim.errors import EvaluationError
 
         self.maps += 1
@@ -205,3 +205,41 @@ def test_job_result_equals_the_command_lines_search_from_the_same_start(repo, co
                 "stop_rule", "history", "knot_times", "values"):
         assert got[key] == want[key], key
     assert len(got["history"]) == 3 and got["objective"] < got["baseline_objective"]
+
+
+def test_the_rank_cut_keeps_a_local_pool_job_identical(repo, config):
+    """The embedded path cuts a generation's certain last candidate (optim.rankcut) in its
+    real process pool, and the job's every generation (candidates, best, median, sigma), its
+    stop rule and its result are those of the command line's run without any cut."""
+    from optim.run import optimize
+    from optim.synthetic import RunningSum
+    from sim import load_spec
+    from worker.fairpool import FairPool
+
+    spec = load_spec("examples/fast_bend.yaml")
+    spec = spec.model_copy(update={"optimize": spec.optimize.model_copy(
+        update={"threshold": None, "max_evaluations": 150, "min_evaluations": 0,
+                "window": 5})})
+    # worse candidates run longer: the last one left in a generation is often the worst
+    fn = RunningSum(steps=200, check_every=20, sleep=1e-3)
+    ref = optimize(spec, SerialExecutor(), seed=3, objective=fn, cut=False)
+    ex = LocalPoolExecutor(config, pool=FairPool(2), objective_factory=lambda s: fn)
+    try:
+        job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
+                              family=spec.family_name, task=spec.task_type, seed=3)
+        JobDriver(repo, job.id, ex, config).run()
+    finally:
+        ex.close()
+    gens = repo.generations(job.id)
+    rows = [r for g in gens for r in repo.evaluations(job.id, g.iteration)]
+    assert sum(bool((r.details or {}).get("cut")) for r in rows) >= 1  # the cut happened
+    assert len(gens) == len(ref.history) >= 10
+    for g, h in zip(gens, ref.history, strict=True):
+        assert (g.best, g.median, g.sigma, g.best_so_far, g.evaluations) == (
+            h["best"], h["median"], h["sigma"], h["best_so_far"], h["evaluations"])
+        assert g.worst <= h["worst"]  # a lower bound where the last was cut
+    got, want = repo.job_result(job.id), ref.to_dict()
+    for d in (got, want):
+        d.pop("wall_seconds")
+        d["history"] = [{k: v for k, v in h.items() if k != "worst"} for h in d["history"]]
+    assert got == want

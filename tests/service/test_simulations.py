@@ -117,10 +117,10 @@ def test_killed_process_is_a_failed_status_and_the_next_clip_runs(client):
         r=client.post("/simulations", json={"spec": long})))
     t.start()
     deadline = time.monotonic() + 20
-    while not (pool._pool and pool._pool._processes) and time.monotonic() < deadline:
+    while not pool.pids() and time.monotonic() < deadline:
         time.sleep(0.05)
     time.sleep(0.5)
-    for pid in list(pool._pool._processes):
+    for pid in pool.pids():
         os.kill(pid, signal.SIGKILL)
     t.join(60)
     r = result["r"]
@@ -155,7 +155,7 @@ def test_pool_processes_end_with_a_killed_api(tmp_path):
             "spec = {'name': 'q', 'family': 's', 'task': {'type': 'quiet_stance'},\n"
             "        'clip': {'preparation': 0.2, 'duration': 0.3, 'decay': 0.2}}\n"
             "asyncio.run(pool.run(spec, None, traces=False, frames=False))\n"
-            "print(*pool._pool._processes, flush=True)\n"
+            "print(*pool.pids(), flush=True)\n"
             "time.sleep(60)\n")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     children = [int(p) for p in proc.stdout.readline().split()]

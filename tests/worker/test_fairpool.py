@@ -90,7 +90,7 @@ from optim.synthetic import Sleep
 from worker.fairpool import FairPool
 pool = FairPool(2)
 pool.run("j", Sleep(0.0), [np.zeros(2)] * 2, lambda: None, lambda i, o: None)
-slots = [p.pid for s in pool._slots for p in s.executor._processes.values()]
+slots = pool.pids()
 print(" ".join(map(str, slots)), flush=True)
 time.sleep(600)
 """
