@@ -6,9 +6,10 @@ store (see worker.evaluation), each candidate claimed and stored on its own, so 
 mid-task loses only the candidate it was running: the re-delivered message skips the ones
 already stored. After each stored result the job's driver is notified (worker.notify).
 
-Each worker pool process opens its own repository lazily (after the fork) and keeps one
-simulator per job (worker.evaluation.SpecCache), so consecutive candidates of a job reuse the
-ODE world.
+Each worker pool process opens its own repository lazily (after the fork), reads a job's spec
+hash once (worker.evaluation.JobSpecs) and keeps the typed spec and one simulator per spec in
+the process's one spec cache (optim.objective.SPECS), so consecutive candidates of a job reuse
+the ODE world and the spec is parsed once per process.
 
 `ignore_result=True`: nothing reads a task's return value (the driver reads the store, never
 `.get()`), so no result is written to the result backend. A task returns only its candidates'
@@ -27,13 +28,13 @@ from celery.signals import worker_process_init
 
 from cmrt.settings import get_settings
 from worker.celery_app import TASK_EVALUATE, TASK_EVALUATE_BATCH, app
-from worker.evaluation import SpecCache, open_worker_repository, run_candidate, run_candidates
+from worker.evaluation import JobSpecs, open_worker_repository, run_candidate, run_candidates
 from worker.notify import Notifier
 
 _lock = threading.Lock()
 _repo = None
 _notifier: Notifier | None = None
-_cache = SpecCache()
+_cache = JobSpecs()
 
 
 def _repository():

@@ -109,8 +109,15 @@ def netns_unavailable() -> str | None:
     return None
 
 
-def _ip(*args: str, netns: str | None = None, check: bool = True) -> str:
-    argv = ["ip", "netns", "exec", netns, "ip", *args] if netns else ["ip", *args]
+def _ip(*args: str, netns: str | None = None, netns_pid: int | None = None,
+        check: bool = True) -> str:
+    """`ip ARGS` here, in the named namespace `netns`, or in the network namespace of the
+    process `netns_pid` (a container's)."""
+    argv = ["ip", *args]
+    if netns:
+        argv = ["ip", "netns", "exec", netns, *argv]
+    elif netns_pid:
+        argv = ["nsenter", "-t", str(netns_pid), "-n", *argv]
     r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
     if check and r.returncode != 0:
         raise RuntimeError(f"{' '.join(argv)} failed ({r.returncode}): {r.stderr.strip()}")
@@ -851,17 +858,25 @@ class ComposeTopology(BaseTopology):
 
     # -- the workers' links ------------------------------------------------------------------
     def _host_links(self, container: Container) -> list[str]:
-        """The machine's ends of the container's veth links (one per network it is on)."""
-        pid = container.pid
-        r = subprocess.run(["nsenter", "-t", str(pid), "-n", "sh", "-c",
-                            "cat /sys/class/net/*/iflink"], capture_output=True, text=True,
-                           timeout=30)
-        wanted = {int(x) for x in r.stdout.split()}
+        """The machine's ends of the container's veth links (one per network it is on).
+
+        Read by netlink inside the container's network namespace (`ip -o link` there shows
+        `eth0@ifN`, N being the peer's index on this machine); /sys/class/net would show this
+        machine's interfaces (sysfs is the mount's, not the namespace's), and the container's
+        loopback has no peer: index 1 here is this machine's own `lo`, whose cut would take
+        every local connection (the tests' HTTP calls to the API included) down with it."""
+        wanted = set()
+        for line in _ip("-o", "link", netns_pid=container.pid).splitlines():
+            m = re.match(r"\d+: [^:@]+@if(\d+):", line)
+            if m:
+                wanted.add(int(m.group(1)))
         links = []
         for line in _ip("-o", "link").splitlines():
             index, name = line.split(":")[:2]
             if int(index) in wanted:
                 links.append(name.strip().split("@")[0])
+        if not links or "lo" in links:
+            raise RuntimeError(f"no veth of {container.name} found on this machine: {links}")
         return links
 
     def cut_worker_link(self) -> None:

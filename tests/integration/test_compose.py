@@ -101,9 +101,8 @@ def test_compose_stop_worker_mid_generation_loses_nothing(api, compose):
     """`docker compose stop worker` (SIGTERM to every worker container) while generation 1 is
     half done (its candidate 0 held open by the delay hook): each worker finishes what it runs
     and exits cleanly; once the workers are started again the job completes with every
-    evaluation stored once (repeated: at most the generation the driver sent again); whether
-    its result equals the same seed's
-    uninterrupted run is printed."""
+    evaluation stored once (repeated: at most the generation the driver sent again), and its
+    result equals the same seed's uninterrupted run."""
     from test_topology import _wait_mid_generation
 
     job_id = submit(api, bend("it_fault_stop", 0.35, popsize=6, max_evaluations=18), seed=9)
@@ -129,7 +128,7 @@ def test_compose_stop_worker_mid_generation_loses_nothing(api, compose):
     # the generation's unresolved evaluations again, and those count as repeated once the
     # workers are back; at most one generation's worth
     assert book["repeated"] <= 6
-    same_as_uninterrupted(api, job_id)  # reported (see test_topology._check_complete)
+    assert same_as_uninterrupted(api, job_id), "a result unlike the uninterrupted run"
 
 
 def test_api_published_on_the_loopback_only(api, compose):
