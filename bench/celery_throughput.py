@@ -265,14 +265,14 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
 
 def store_path(spec, n: int, scratch: _Scratch) -> dict:
     """Median and mean ms of `run_candidate` with a null objective (claim, result; no Celery)."""
-    from worker.evaluation import SpecCache, open_worker_repository, run_candidate
+    from worker.evaluation import JobSpecs, open_worker_repository, run_candidate
 
     repo = open_worker_repository(scratch.db_url)  # as in a Celery worker process
     try:
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task_type, seed=0)
         repo.set_job_status(job.id, "running")
-        cache = SpecCache(lambda _spec: (lambda _x: 1.0))
+        cache = JobSpecs(lambda _spec: (lambda _x: 1.0))
         pop, times, cpu = 16, [], 0.0
         for g in range(100, 100 + (n + pop - 1) // pop + 1):
             repo.put_pending_evaluations(job.id, g, [[0.5] * spec.cmrt_dimension] * pop)

@@ -63,7 +63,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, model_validator
 
 from optim.errors import BasisError, InterpolationError, OptimError
 from optim.interpolate import interpolate
@@ -144,12 +144,17 @@ class FamilySpec(StrictModel):
 
     model_config = {**StrictModel.model_config, "populate_by_name": True}
 
+    #: The base spec and the member specs, parsed once per FamilySpec.
+    _base: Any = PrivateAttr(default=None)
+    _members: dict[tuple[float, str], TaskSpec] = PrivateAttr(default_factory=dict)
+
     @model_validator(mode="after")
     def _check(self) -> FamilySpec:
         try:
             base = parse_spec(self.spec, "spec")
         except SpecError as err:
             raise ValueError(str(err)) from None
+        self._base = base
         dumped = base.model_dump(mode="json")
         try:
             current = get_path(dumped, self.param)
@@ -183,7 +188,9 @@ class FamilySpec(StrictModel):
     # -- derived -------------------------------------------------------------------------------
     @property
     def base(self) -> TaskSpec:
-        return parse_spec(self.spec, "spec")
+        if self._base is None:
+            self._base = parse_spec(self.spec, "spec")
+        return self._base
 
     @property
     def family(self) -> str:
@@ -229,7 +236,16 @@ MAIN, WARM = "main", "warm"
 
 def member_spec(fs: FamilySpec, value: float, role: str = MAIN) -> TaskSpec:
     """The base spec with `param` = value, named `<family>_<leaf><value>` in the family; with
-    role WARM its optimizer step and stopping rules are `fs.warm`'s."""
+    role WARM its optimizer step and stopping rules are `fs.warm`'s. Parsed once per family
+    spec, value and role."""
+    key = (float(value), role)
+    hit = fs._members.get(key)
+    if hit is None:
+        hit = fs._members[key] = _member_spec(fs, value, role)
+    return hit
+
+
+def _member_spec(fs: FamilySpec, value: float, role: str) -> TaskSpec:
     data = set_path(fs.base.model_dump(mode="json"), fs.param, float(value))
     data["family"] = fs.family
     data["name"] = f"{fs.family}_{fs.leaf}{_vid(value)}"[:100]

@@ -1,11 +1,17 @@
-"""The simulation objective: params in [0, 1]^d -> CMRT spline -> one clip simulation.
+"""The simulation objective: params in [0, 1]^d -> CMRT spline -> one clip simulation, and the
+process's one cache of specs.
 
 Contracts:
-  * `SimObjective(spec)` is small and picklable: it holds only the spec's canonical JSON.
-    In each process it lazily builds ONE `sim.rollout.Rollout` per distinct spec (module-level
-    cache keyed by that JSON, at most `SIMULATOR_CACHE_SIZE` entries, least recently used
-    dropped) and reuses it for every call; the simulator resets its world between runs, so
-    results are deterministic and independent of call order.
+  * `SPECS` is this process's one spec cache: spec hash (`sim.spec.CanonicalSpec.hash`) ->
+    the typed spec, and, built on first use, its simulator (one `sim.rollout.Rollout`) and the
+    objectives made from it. It keeps the `SPEC_CACHE_SIZE` most recently used specs and the
+    simulators of the `SIMULATOR_CACHE_SIZE` most recently used ones (each holds an ODE
+    world); the simulator resets its world between runs, so results are deterministic and
+    independent of call order. A process parses a spec only on a miss: at most once while the
+    spec stays among the recently used.
+  * `SimObjective(spec)` is small and picklable: it carries only the spec's hash and canonical
+    JSON; in another process it finds the typed spec in `SPECS` by the hash, and parses the
+    text only there on a miss.
   * `SimObjective(spec)(params) -> EvalOutcome` (objective: the paper's CP-error 2-norm in
     metres, with the simulator's fall penalty; fell; cpu_seconds).
     `params=None` evaluates the clip without any CMRT.
@@ -16,68 +22,158 @@ Contracts:
 
 from __future__ import annotations
 
-import json
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cmrt.canonical import canonical_json, text_hash
 from optim.outcome import EvalOutcome
 from optim.spline import decode
+from sim.spec import CanonicalSpec, TaskSpec, canonical_spec, stored_spec, text_spec
 
 if TYPE_CHECKING:
     from sim.evaluation import Evaluation
-    from sim.spec import TaskSpec
 
-#: Rollouts kept per process (each holds an ODE world).
+#: Specs kept per process (a typed spec is a few kB).
+SPEC_CACHE_SIZE = 64
+#: Simulators kept per process (each holds an ODE world).
 SIMULATOR_CACHE_SIZE = 4
 
-_CACHE: OrderedDict[str, tuple[Any, Any]] = OrderedDict()  # spec JSON -> (TaskSpec, Rollout)
+
+@dataclass
+class _Entry:
+    canonical: Any  # CanonicalSpec, or another typed document (`SpecCache.typed`)
+    simulator: Any = None
+    objectives: dict[Any, Any] = field(default_factory=dict)
 
 
-def spec_json(spec: TaskSpec | Mapping[str, Any]) -> str:
-    """Canonical JSON of a spec (sorted keys): the cache key and the picklable form."""
-    data = spec.model_dump(mode="json") if hasattr(spec, "model_dump") else dict(spec)
-    return json.dumps(data, sort_keys=True, separators=(",", ":"))
+class SpecCache:
+    """Spec hash -> typed spec, its simulator and objectives (see the module docstring)."""
 
+    def __init__(self, size: int = SPEC_CACHE_SIZE,
+                 simulators: int = SIMULATOR_CACHE_SIZE) -> None:
+        self.size, self.simulators = size, simulators
+        self._d: OrderedDict[str, _Entry] = OrderedDict()
+        self._sims: OrderedDict[str, None] = OrderedDict()  # hashes whose simulator is built
 
-def _parse(text: str) -> TaskSpec:
-    from sim.spec import parse_spec
+    def __len__(self) -> int:
+        return len(self._d)
 
-    return parse_spec(json.loads(text), "<objective spec>")
+    def __contains__(self, hash: object) -> bool:
+        return hash in self._d
 
+    def _entry(self, hash: str, load: Callable[[], CanonicalSpec]) -> _Entry:
+        hit = self._d.get(hash)
+        if hit is not None:
+            self._d.move_to_end(hash)
+            return hit
+        entry = _Entry(load())
+        self._d[hash] = entry
+        while len(self._d) > self.size:
+            old, _ = self._d.popitem(last=False)
+            self._sims.pop(old, None)
+        return entry
 
-def _cached(text: str) -> tuple[TaskSpec, Any]:
-    """(spec, Rollout) for this spec JSON in this process, built on first use."""
-    hit = _CACHE.get(text)
-    if hit is not None:
-        _CACHE.move_to_end(text)
+    def put(self, canonical: CanonicalSpec) -> CanonicalSpec:
+        """Keep a spec this process has in typed form already (no parse); the cached one if its
+        hash is known."""
+        return self._entry(canonical.hash, lambda: canonical).canonical
+
+    def get(self, hash: str, load: Callable[[], CanonicalSpec]) -> CanonicalSpec:
+        """The spec of `hash`; `load()` (which parses it) runs only on a miss."""
+        return self._entry(hash, load).canonical
+
+    def typed(self, hash: str, load: Callable[[], Any]) -> Any:
+        """Any other typed document kept under its hash (a family request: its
+        `optim.family.FamilySpec`); `load()` runs only on a miss."""
+        return self._entry(hash, load).canonical
+
+    def stored(self, document: Mapping[str, Any], hash: str, source: str = "<spec>"
+               ) -> CanonicalSpec:
+        """The spec of a document stored with its hash (a job's), parsed only on a miss."""
+        return self.get(hash, lambda: stored_spec(document, hash, source))
+
+    def simulator(self, canonical: CanonicalSpec) -> Any:
+        """The spec's `Rollout`, built on first use."""
+        entry = self._entry(canonical.hash, lambda: canonical)
+        if entry.simulator is None:
+            from sim.rollout import Rollout  # lazy: heavy, absent in a numerics-only setup
+
+            entry.simulator = Rollout(entry.canonical.spec)
+        self._sims[canonical.hash] = None
+        self._sims.move_to_end(canonical.hash)
+        while len(self._sims) > self.simulators:
+            old, _ = self._sims.popitem(last=False)
+            if old in self._d:
+                self._d[old].simulator = None
+        return entry.simulator
+
+    def objective(self, canonical: CanonicalSpec,
+                  factory: Callable[[TaskSpec], Any] | None = None) -> Any:
+        """The spec's objective: a `SimObjective` (factory None) or `factory(spec)`, made once
+        per spec and factory."""
+        entry = self._entry(canonical.hash, lambda: canonical)
+        hit = entry.objectives.get(factory)
+        if hit is None:
+            hit = (SimObjective(entry.canonical) if factory is None
+                   else factory(entry.canonical.spec))
+            entry.objectives[factory] = hit
         return hit
-    from sim.rollout import Rollout  # lazy: heavy, and may not exist in a numerics-only setup
 
-    spec = _parse(text)
-    entry = (spec, Rollout(spec))
-    _CACHE[text] = entry
-    while len(_CACHE) > SIMULATOR_CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return entry
+    def clear(self) -> None:
+        self._d.clear()
+        self._sims.clear()
+
+
+#: This process's one spec cache.
+SPECS = SpecCache()
 
 
 def clear_cache() -> None:
-    """Drop this process's cached simulators."""
-    _CACHE.clear()
+    """Drop this process's cached specs and simulators."""
+    SPECS.clear()
+
+
+def _canonical(spec: TaskSpec | CanonicalSpec | Mapping[str, Any]) -> CanonicalSpec:
+    if isinstance(spec, CanonicalSpec):
+        return spec
+    if isinstance(spec, Mapping):  # a spec document (validated upstream): parsed on a miss
+        text = canonical_json(spec)
+        hash = text_hash(text)
+        return SPECS.get(hash, lambda: text_spec(text, hash, "<objective spec>"))
+    return canonical_spec(spec)
 
 
 class SimObjective:
     """Picklable objective for one spec; see module docstring."""
 
-    def __init__(self, spec: TaskSpec | Mapping[str, Any]) -> None:
-        self.spec_json = spec_json(spec)
+    def __init__(self, spec: TaskSpec | CanonicalSpec | Mapping[str, Any]) -> None:
+        canonical = SPECS.put(_canonical(spec))
+        self.spec_hash = canonical.hash
+        self._canonical: CanonicalSpec | None = canonical  # in this process: never parsed
+        self._text: str | None = None
+
+    @property
+    def spec_json(self) -> str:
+        """The spec's canonical JSON (what a pickled objective carries)."""
+        return self._text if self._canonical is None else self._canonical.text
+
+    def _load(self) -> CanonicalSpec:
+        if self._canonical is not None:
+            return self._canonical
+        assert self._text is not None
+        return text_spec(self._text, self.spec_hash, "<objective spec>")
+
+    def canonical(self) -> CanonicalSpec:
+        """The typed spec (parsed from the carried text only on a miss in this process)."""
+        return SPECS.get(self.spec_hash, self._load)
 
     @property
     def spec(self) -> TaskSpec:
-        return _parse(self.spec_json)
+        return self.canonical().spec
 
     #: `__call__` takes `stop_above` (optim.rankcut's early stop of a certain last).
     supports_cut = True
@@ -88,8 +184,9 @@ class SimObjective:
     ) -> Evaluation:
         """The full `Evaluation` of `params` (None: no CMRT); `stop_above`: see
         `sim.rollout.Rollout.run`."""
-        spec, sim = _cached(self.spec_json)
-        cmrt = None if params is None else decode(spec, params)
+        canonical = self.canonical()
+        sim = SPECS.simulator(canonical)
+        cmrt = None if params is None else decode(canonical.spec, params)
         if stop_above is None:
             return sim.run(cmrt, traces=traces)
         return sim.run(cmrt, traces=traces, stop_above=stop_above)
@@ -107,26 +204,29 @@ class SimObjective:
         )
 
     def __getstate__(self) -> dict[str, str]:
-        return {"spec_json": self.spec_json}
+        return {"spec_hash": self.spec_hash, "spec_json": self.spec_json}
 
     def __setstate__(self, state: dict[str, str]) -> None:
-        self.spec_json = state["spec_json"]
+        self.spec_hash, self._text = state["spec_hash"], state["spec_json"]
+        self._canonical = None
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, SimObjective) and other.spec_json == self.spec_json
+        return isinstance(other, SimObjective) and other.spec_hash == self.spec_hash
 
     def __hash__(self) -> int:
-        return hash(self.spec_json)
+        return hash(self.spec_hash)
 
     def __repr__(self) -> str:
-        return f"SimObjective({json.loads(self.spec_json).get('name')!r})"
+        return f"SimObjective({self.spec.name!r})"
 
 
 def evaluate_params(
-    spec: TaskSpec, params: Sequence[float] | np.ndarray | None, traces: bool = False
+    spec: TaskSpec | CanonicalSpec | Mapping[str, Any], params: Sequence[float] | np.ndarray | None,
+    traces: bool = False,
 ) -> Evaluation:
     """Simulate `spec` with the CMRT decoded from `params` (None: without CMRT)."""
     return SimObjective(spec).evaluation(params, traces=traces)
 
 
-__all__ = ["SIMULATOR_CACHE_SIZE", "SimObjective", "clear_cache", "evaluate_params", "spec_json"]
+__all__ = ["SIMULATOR_CACHE_SIZE", "SPECS", "SPEC_CACHE_SIZE", "SimObjective", "SpecCache",
+           "clear_cache", "evaluate_params"]

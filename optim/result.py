@@ -24,6 +24,7 @@ raise `ResultFileError` naming the file and the field for missing, mistyped or i
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -142,11 +143,18 @@ class OptimizationResult:
         baseline_fall_direction: str | None = None,
         baseline_task_success: bool | None = None,
     ) -> OptimizationResult:
-        """A result for `spec` (a TaskSpec) whose best CMRT is `params` (spline data derived)."""
+        """A result for `spec` (a TaskSpec, or a `sim.spec.CanonicalSpec` whose document it
+        keeps without dumping the spec again) whose best CMRT is `params` (spline data
+        derived)."""
+        document = getattr(spec, "document", None)
+        if document is not None:
+            spec = spec.spec
+        else:
+            document = spec.model_dump(mode="json")
         p = check_params(spec, params)
         spline = decode(spec, p)
-        return cls(
-            spec=spec.model_dump(mode="json"),
+        result = cls(
+            spec=copy.deepcopy(dict(document)),
             dimension=spec.cmrt_dimension,
             params=[float(v) for v in p],
             length=spline.length,
@@ -173,6 +181,8 @@ class OptimizationResult:
             baseline_fall_direction=baseline_fall_direction,
             baseline_task_success=baseline_task_success,
         )
+        result.__dict__["_task_spec"] = spec  # typed already: no parse on use
+        return result
 
     # -- derived -------------------------------------------------------------------------------
     @property
@@ -185,10 +195,14 @@ class OptimizationResult:
         return str(self.spec.get("family") or self.spec.get("name", ""))
 
     def task_spec(self) -> Any:
-        """The spec as a validated `sim.spec.TaskSpec`."""
-        from sim.spec import parse_spec
+        """The spec as a validated `sim.spec.TaskSpec` (parsed on first use, then kept)."""
+        typed = self.__dict__.get("_task_spec")
+        if typed is None:
+            from sim.spec import parse_spec
 
-        return parse_spec(self.spec, f"result {self.name!r} spec")
+            typed = parse_spec(self.spec, f"result {self.name!r} spec")
+            self.__dict__["_task_spec"] = typed
+        return typed
 
     def task_parameters(self) -> dict[str, float]:
         """The spec's task parameters (e.g. {"duration": 0.4}), see TaskSpec.task_parameters."""

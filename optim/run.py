@@ -43,12 +43,12 @@ from optim.loop import (
     new_optimizer,
     run_generations,
 )
-from optim.objective import SimObjective, spec_json
+from optim.objective import SimObjective
 from optim.result import OptimizationResult
+from sim.spec import CanonicalSpec, TaskSpec, canonical_spec
 
 if TYPE_CHECKING:
     from optim.pca import Basis
-    from sim.spec import TaskSpec
 
 CHECKPOINT_FORMAT = "cmrt-checkpoint/1"
 
@@ -56,9 +56,10 @@ Progress = Callable[[GenerationStats], "bool | None"]
 Objective = Callable[[np.ndarray], "EvalOutcome | float"]
 
 
-def _checkpoint_meta(spec: TaskSpec, seed: int, basis: Basis | None, dim: int) -> dict[str, Any]:
+def _checkpoint_meta(spec: CanonicalSpec, seed: int, basis: Basis | None, dim: int
+                     ) -> dict[str, Any]:
     return {
-        "spec_json": spec_json(spec),
+        "spec_json": spec.text,
         "seed": int(seed),
         "basis_id": None if basis is None else basis.id,
         "dim": int(dim),
@@ -155,7 +156,7 @@ class CheckpointFile:
 
 
 def optimize(
-    spec: TaskSpec,
+    spec: TaskSpec | CanonicalSpec,
     executor: Executor,
     *,
     seed: int,
@@ -167,7 +168,8 @@ def optimize(
     objective: Objective | None = None,
     cut: bool = True,
 ) -> OptimizationResult:
-    """Optimise the CMRT of `spec` (see module docstring).
+    """Optimise the CMRT of `spec` (see module docstring). A TaskSpec is canonicalised here,
+    once (the command line's boundary); the pool's processes get it by hash and text.
 
     objective: full-params callable evaluated through `executor` (default SimObjective(spec));
     any picklable `params -> EvalOutcome | float` works (tests, benchmarks).
@@ -176,11 +178,13 @@ def optimize(
     the history's `worst` may then be a lower bound.
     """
     t0 = time.perf_counter()
-    fn: Objective = objective if objective is not None else SimObjective(spec)
+    canonical = spec if isinstance(spec, CanonicalSpec) else canonical_spec(spec)
+    spec = canonical.spec
+    fn: Objective = objective if objective is not None else SimObjective(canonical)
     space = SearchSpace.of(spec, basis, x0)
     state = None
     if checkpoint is not None:
-        meta = _checkpoint_meta(spec, seed, basis, space.dim)
+        meta = _checkpoint_meta(canonical, seed, basis, space.dim)
         state = CheckpointFile(Path(checkpoint), meta, resume=resume, t0=t0)
     opt = state.restore() if state is not None else None
     if opt is None:
@@ -189,12 +193,12 @@ def optimize(
     stop_rule = run_generations(opt, space, evaluator, state, after_generation=progress)
     final = final_evaluation(opt, space, evaluator)
     wall_before = 0.0 if state is None else state.wall_before
-    return result_of(spec, opt, space, final, stop_rule=stop_rule, seed=seed,
+    return result_of(canonical, opt, space, final, stop_rule=stop_rule, seed=seed,
                      wall_seconds=wall_before + time.perf_counter() - t0)
 
 
 def result_of(
-    spec: TaskSpec,
+    spec: TaskSpec | CanonicalSpec,
     opt: CmaOptimizer,
     space: SearchSpace,
     final: FinalEvaluation,

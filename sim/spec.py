@@ -28,10 +28,11 @@ Units: seconds, metres, newtons, kilograms; joint angles in specs are in degrees
 from __future__ import annotations
 
 import json
+import os
 import types
 import typing
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Union
 
@@ -48,6 +49,7 @@ from pydantic import (
 )
 from pydantic.fields import FieldInfo
 
+from cmrt.canonical import canonical_json, text_hash
 from sim.character import (
     DATA_DIR,
     DEFAULT_CHARACTER,
@@ -339,8 +341,22 @@ def _format_error(err: ValidationError) -> str:
     return "; ".join(lines)
 
 
+#: Diagnostics: when this variable names a file, every parse of a spec and every canonical
+#: serialisation appends one line `<pid> parse|serialise <name> <source>` to it (the tests count
+#: the parses of a job's spec per process with it).
+TRACE_VARIABLE = "CMRT_SPEC_TRACE"
+
+
+def _trace(kind: str, name: Any, source: str) -> None:
+    path = os.environ.get(TRACE_VARIABLE)
+    if path:
+        with open(path, "a") as f:
+            f.write(f"{os.getpid()} {kind} {name} {source}\n")
+
+
 def parse_spec(data: Any, source: str = "<spec>") -> TaskSpec:
     """Validate a mapping into a TaskSpec, raising SpecError naming each bad field and rule."""
+    _trace("parse", data.get("name") if isinstance(data, dict) else None, source)
     if not isinstance(data, dict):
         raise SpecError(f"{source}: a spec must be a mapping, got {type(data).__name__}")
     try:
@@ -362,6 +378,58 @@ def load_spec(path: str | Path) -> TaskSpec:
         kind = "JSON" if p.suffix == ".json" else "YAML"
         raise SpecError(f"{p}: not valid {kind}: {err}") from None
     return parse_spec(data, str(p))
+
+
+# ---- the canonical form ----------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class CanonicalSpec:
+    """A validated spec with its JSON document (what the store keeps) and the hash of the
+    document's canonical text (`cmrt.canonical`): made once where a spec enters (the route, the
+    command line), and the key every other process caches the typed spec under, so that a
+    process parses a spec at most once (`optim.objective.SPECS`). `text`, the canonical JSON,
+    is what a pickled objective carries; it is computed on first use when the spec was read
+    from the store (which keeps the document and the hash)."""
+
+    spec: TaskSpec
+    document: dict[str, Any]
+    hash: str
+    _text: list[str] = field(default_factory=list, repr=False)
+
+    @property
+    def text(self) -> str:
+        if not self._text:
+            _trace("serialise", self.spec.name, "canonical text")
+            self._text.append(canonical_json(self.document))
+        return self._text[0]
+
+
+def canonical_spec(spec: TaskSpec) -> CanonicalSpec:
+    """The canonical form of a typed spec: one dump to its JSON document, one canonical text,
+    its hash."""
+    _trace("serialise", spec.name, "canonical document")
+    document = spec.model_dump(mode="json")
+    text = canonical_json(document)
+    return CanonicalSpec(spec, document, text_hash(text), [text])
+
+
+def parse_canonical(data: Any, source: str = "<spec>") -> CanonicalSpec:
+    """Validate raw input (a request body, a file's mapping) and canonicalise it: the one
+    parse at a boundary. SpecError as `parse_spec`."""
+    return canonical_spec(parse_spec(data, source))
+
+
+def stored_spec(document: Mapping[str, Any], hash: str, source: str = "<spec>"
+                ) -> CanonicalSpec:
+    """The typed form of a document stored with its hash (a job's spec): one parse; the
+    stored hash is trusted (the boundary computed it from this document)."""
+    doc = dict(document)
+    return CanonicalSpec(parse_spec(doc, source), doc, hash)
+
+
+def text_spec(text: str, hash: str | None = None, source: str = "<spec>") -> CanonicalSpec:
+    """The typed form of a canonical text (a pickled objective's): one parse."""
+    doc = json.loads(text)
+    return CanonicalSpec(parse_spec(doc, source), doc, hash or text_hash(text), [text])
 
 
 # ---- the numeric fields of a spec ------------------------------------------------------------

@@ -15,6 +15,7 @@ from typing import Any
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 
+from cmrt.canonical import document_hash
 from store.errors import NotFound
 from store.models import Family, FamilyRun, Job
 from store.records import (
@@ -30,8 +31,10 @@ class FamilyRepository(abc.ABC):
     """Families: the request, the runs' jobs, the probes and the report."""
 
     @abc.abstractmethod
-    def create_family(self, spec: Mapping[str, Any], *, family: str, param: str) -> FamilyRecord:
-        """Store a new family (status `running`) and return it."""
+    def create_family(self, spec: Mapping[str, Any], *, family: str, param: str,
+                      spec_hash: str | None = None) -> FamilyRecord:
+        """Store a new family (status `running`) and return it; `spec_hash`: the hash of the
+        request's canonical text (cmrt.canonical; computed here when not given)."""
 
     @abc.abstractmethod
     def get_family(self, family_id: str) -> FamilyRecord:
@@ -87,7 +90,8 @@ class FamilyRepository(abc.ABC):
 
 def _family_record(f: Family, runs: dict[str, str]) -> FamilyRecord:
     return FamilyRecord(
-        id=f.id, family=f.family, param=f.param, spec=f.spec, status=f.status, error=f.error,
+        id=f.id, family=f.family, param=f.param, spec=f.spec, spec_hash=f.spec_hash,
+        status=f.status, error=f.error,
         cancel_requested=bool(f.cancel_requested), created_at=f.created_at,
         finished_at=f.finished_at, runs=runs,
     )  # fmt: skip
@@ -104,9 +108,10 @@ class SqlFamilies(SqlBase, FamilyRepository):
                 out[fid][rid] = jid
         return out
 
-    def create_family(self, spec, *, family, param):
-        row = Family(id=str(uuid.uuid4()), family=family, param=param,
-                     spec=_json(dict(spec), "spec"), status=FAMILY_RUNNING, error=None,
+    def create_family(self, spec, *, family, param, spec_hash=None):
+        doc = _json(dict(spec), "spec")
+        row = Family(id=str(uuid.uuid4()), family=family, param=param, spec=doc,
+                     spec_hash=spec_hash or document_hash(doc), status=FAMILY_RUNNING, error=None,
                      cancel_requested=False, created_at=self._clock())
         with self._write() as s:
             s.add(row)

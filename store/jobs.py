@@ -10,6 +10,7 @@ from typing import Any
 
 from sqlalchemy import func, or_, select, update
 
+from cmrt.canonical import document_hash
 from store.errors import Conflict, InvalidTransition, NotFound
 from store.models import Basis, Job
 from store.records import (
@@ -45,10 +46,12 @@ class JobRepository(abc.ABC):
         workers: int = 1,
         basis_id: str | None = None,
         start: Mapping[str, Any] | None = None,
+        spec_hash: str | None = None,
     ) -> JobRecord:
         """Store a new job in status `queued` and return it (a fresh uuid4 string id).
 
-        `spec` is the JSON form of the TaskSpec (`spec.model_dump(mode="json")`). `start`:
+        `spec` is the JSON form of the TaskSpec (`sim.spec.CanonicalSpec.document`) and
+        `spec_hash` the hash of its canonical text (computed here when not given). `start`:
         where its search starts, {"from": what, "x0": full params} (None: the flat spline).
         Raises Conflict if `basis_id` names no stored basis.
         """
@@ -133,21 +136,24 @@ class JobRepository(abc.ABC):
 class SqlJobs(SqlBase, JobRepository):
     # ---- jobs ---------------------------------------------------------------------------
     def create_job(self, spec, *, name, family, task, seed=None, workers=1, basis_id=None,
-                   start=None):
+                   start=None, spec_hash=None):
         with self._write() as s:
             return self._create_job_in(s, spec, name=name, family=family, task=task, seed=seed,
-                                       workers=workers, basis_id=basis_id, start=start)
+                                       workers=workers, basis_id=basis_id, start=start,
+                                       spec_hash=spec_hash)
 
     def _create_job_in(self, s, spec, *, name, family, task, seed=None, workers=1, basis_id=None,
-                       start=None) -> JobRecord:
+                       start=None, spec_hash=None) -> JobRecord:
         """create_job inside the session `s` (a caller's transaction)."""
         if workers < 1:
             raise ValueError("workers must be >= 1")
         if basis_id is not None and s.get(Basis, basis_id) is None:
             raise Conflict(f"basis {basis_id} not found")
+        doc = _json(dict(spec), "spec")
         job = Job(
-            id=str(uuid.uuid4()), name=name, family=family, task=task,
-            spec=_json(dict(spec), "spec"), seed=seed, workers=int(workers), status=QUEUED,
+            id=str(uuid.uuid4()), name=name, family=family, task=task, spec=doc,
+            spec_hash=spec_hash or document_hash(doc), seed=seed, workers=int(workers),
+            status=QUEUED,
             basis_id=basis_id, created_at=self._clock(), evaluations=0, iterations=0,
             cancel_requested=False, start=None if start is None else _json(dict(start), "start"),
         )  # fmt: skip

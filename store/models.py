@@ -75,6 +75,8 @@ class Job(Base):
     family: Mapped[str] = mapped_column(String(100), index=True)
     task: Mapped[str] = mapped_column(String(32))
     spec: Mapped[dict[str, Any]] = mapped_column(JSON)
+    #: SHA-256 of the spec's canonical text (cmrt.canonical): the key processes cache it under.
+    spec_hash: Mapped[str] = mapped_column(String(64))
     seed: Mapped[int | None] = mapped_column(Integer)
     workers: Mapped[int] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), index=True)
@@ -113,6 +115,8 @@ class Family(Base):
     param: Mapped[str] = mapped_column(String(200))
     #: The family request (optim.family.FamilySpec, JSON form).
     spec: Mapped[Any] = mapped_column(JSON)
+    #: SHA-256 of the request's canonical text (cmrt.canonical).
+    spec_hash: Mapped[str] = mapped_column(String(64))
     status: Mapped[str] = mapped_column(String(16), index=True)
     error: Mapped[str | None] = mapped_column(Text)
     cancel_requested: Mapped[bool] = mapped_column(Boolean)

@@ -47,6 +47,8 @@ class JobRecord:
     family: str
     task: str
     spec: dict[str, Any]
+    #: SHA-256 of the spec's canonical text (cmrt.canonical): the key processes cache it under.
+    spec_hash: str
     seed: int | None
     workers: int
     status: str
@@ -211,6 +213,8 @@ class FamilyRecord:
     param: str
     #: The family request (optim.family.FamilySpec JSON form).
     spec: dict[str, Any]
+    #: SHA-256 of the request's canonical text (cmrt.canonical).
+    spec_hash: str
     status: str
     error: str | None
     cancel_requested: bool

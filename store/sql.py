@@ -62,7 +62,8 @@ def _opt_num(value: Any, what: str) -> float | None:
 
 def _job_record(j: Job) -> JobRecord:
     return JobRecord(
-        id=j.id, name=j.name, family=j.family, task=j.task, spec=j.spec, seed=j.seed,
+        id=j.id, name=j.name, family=j.family, task=j.task, spec=j.spec,
+        spec_hash=j.spec_hash, seed=j.seed,
         workers=j.workers, status=j.status, stop_rule=j.stop_rule, error=j.error,
         basis_id=j.basis_id, created_at=j.created_at, started_at=j.started_at,
         finished_at=j.finished_at, best_objective=j.best_objective, best_params=j.best_params,

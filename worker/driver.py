@@ -53,7 +53,7 @@ from optim.pca import Basis
 from optim.run import result_of
 from optim.spline import decode, sample_curve
 from sim.errors import SpecError
-from sim.spec import TaskSpec, parse_spec
+from sim.spec import TaskSpec
 from store import CmrtEntry, NotFound, Repository, StoreError
 from store.records import (
     CANCELLED,
@@ -65,6 +65,7 @@ from store.records import (
     RUNNING,
     STOPPED,
 )
+from worker.evaluation import job_spec
 from worker.executors import DriverInterruptError, GenerationExecutor, JobFailedError
 
 log = logging.getLogger(__name__)
@@ -316,10 +317,11 @@ class JobDriver:
         job = self.repo.get_job(self.job_id)
         if job.terminal:
             return job.status
-        try:  # the store is a process boundary: the one parse of the spec in this process
-            spec = parse_spec(job.spec, f"job {self.job_id} spec")
+        try:  # parsed only if this process has not got it (the route of an embedded service has)
+            canonical = job_spec(self.repo, self.job_id, job.spec_hash)
         except SpecError as err:
             raise JobFailedError(str(err)) from None
+        spec = canonical.spec
         if job.cancel_requested:
             raise DriverInterruptError("cancel")
         if job.status == QUEUED:
@@ -342,7 +344,7 @@ class JobDriver:
         if self.repo.job_result(self.job_id) is None:
             wall = sum(g.wall_time for g in self.repo.generations(self.job_id))
             self.repo.set_job_result(self.job_id, result_of(
-                spec, opt, self.space, final, stop_rule=stop_rule,
+                canonical, opt, self.space, final, stop_rule=stop_rule,
                 seed=int(job.seed if job.seed is not None else 0), wall_seconds=wall,
             ).to_dict())
         status = STOPPED if stop_rule in STOPPED_RULES else CONVERGED

@@ -10,8 +10,9 @@ Idempotent and attempt-counted, with two store calls per candidate:
      has finished meanwhile (cancelled or failed);
   2. past `max_attempts` the evaluation is failed with a clear error instead of run again (a
      candidate that kills its worker every time fails its job instead of looping);
-  3. the objective runs (one simulator per process and job: `SpecCache`, which reads the job's
-     spec from the store only on a miss);
+  3. the objective runs (`JobSpecs`: the job's spec hash, read from the store once per process
+     and job, keys the process's one spec cache `optim.objective.SPECS`, which parses the
+     stored spec only on a miss and keeps one simulator per spec);
   4. `store_result` upserts the small result keyed by (job, generation, index): the first
      result wins, a repeated one changes nothing.
 An exception inside the objective is a property of the candidate (deterministic): it is stored as
@@ -39,7 +40,8 @@ from sqlalchemy.exc import DBAPIError, OperationalError
 
 from optim.errors import EvaluationError
 from optim.executors import EvalOutcome, evaluate_one
-from sim.spec import TaskSpec, parse_spec
+from optim.objective import SPECS
+from sim.spec import CanonicalSpec, TaskSpec, stored_spec
 from store import NotFound, Repository
 from store.records import DONE, PENDING
 from worker import faults
@@ -63,12 +65,6 @@ class DriverInterruptError(Exception):
     Its message says why; "shutdown" (a graceful stop) gives back the attempts it cut short."""
 
 
-def default_objective_factory(spec: TaskSpec) -> Callable[[np.ndarray], Any]:
-    from optim.objective import SimObjective
-
-    return SimObjective(spec)
-
-
 def attempts_exhausted_message(generation: int, index: int, attempts: int) -> str:
     """The error of a candidate given up on. Only attempts whose process ended without a
     result count (a graceful stop gives its attempts back: `Repository.release_attempt`), so
@@ -80,30 +76,39 @@ def attempts_exhausted_message(generation: int, index: int, attempts: int) -> st
     )
 
 
-class SpecCache:
-    """Per-process cache: job id -> (spec, objective). Specs of a job never change."""
+def job_spec(repo: Repository, job_id: str, spec_hash: str | None = None) -> CanonicalSpec:
+    """The typed spec of a stored job from the process's one spec cache (`SPECS`): parsed
+    from the store's document only when this process has not got it already (the route or
+    the driver of this process put it there, or an earlier candidate of any job with the same
+    spec). SpecError if the stored spec does not parse."""
+    if spec_hash is None:
+        job = repo.get_job(job_id)
+        return SPECS.stored(job.spec, job.spec_hash, f"job {job_id} spec")
+    return SPECS.get(spec_hash, lambda: stored_spec(repo.get_job(job_id).spec, spec_hash,
+                                                    f"job {job_id} spec"))
 
-    def __init__(self, factory: ObjectiveFactory | None = None, size: int = 16) -> None:
-        self.factory = factory or default_objective_factory
+
+class JobSpecs:
+    """Job id -> the hash of its spec (a job's spec never changes), over the process's one
+    spec cache (`optim.objective.SPECS`, which holds the typed specs, their simulators and
+    objectives): the store is read once per job, the spec parsed once per spec.
+
+    factory: builds a job's objective from its typed spec (None: `SimObjective`, the
+    simulation); made once per spec and factory."""
+
+    def __init__(self, factory: ObjectiveFactory | None = None, size: int = 1024) -> None:
+        self.factory = factory
         self.size = size
-        self._d: OrderedDict[str, tuple[TaskSpec, Any]] = OrderedDict()
+        self._hashes: OrderedDict[str, str] = OrderedDict()
 
-    def get(
-        self, repo: Repository, job_id: str, spec: TaskSpec | None = None
-    ) -> tuple[TaskSpec, Any]:
-        """The job's (spec, objective): `spec` when the caller has parsed it already, else
-        read from the store and parsed (once per process and job)."""
-        hit = self._d.get(job_id)
-        if hit is not None:
-            self._d.move_to_end(job_id)
-            return hit
-        if spec is None:
-            spec = parse_spec(repo.get_job(job_id).spec, f"job {job_id} spec")
-        entry = (spec, self.factory(spec))
-        self._d[job_id] = entry
-        while len(self._d) > self.size:
-            self._d.popitem(last=False)
-        return entry
+    def get(self, repo: Repository, job_id: str) -> tuple[TaskSpec, Any]:
+        """The job's (typed spec, objective)."""
+        canonical = job_spec(repo, job_id, self._hashes.get(job_id))
+        self._hashes[job_id] = canonical.hash
+        self._hashes.move_to_end(job_id)
+        while len(self._hashes) > self.size:
+            self._hashes.popitem(last=False)
+        return canonical.spec, SPECS.objective(canonical, self.factory)
 
 
 #: EvalOutcome fields stored in an evaluation row's `details` when they are not None.
@@ -183,8 +188,7 @@ def run_candidates(
     indices: list[int],
     *,
     max_attempts: int,
-    cache: SpecCache,
-    spec: TaskSpec | None = None,
+    cache: JobSpecs,
     pool_run: PoolRun | None = None,
     worker_name: str | None = None,
     notify: Callable[[str, int, int], Any] | None = None,
@@ -199,15 +203,16 @@ def run_candidates(
     stays pending (the caller claims it again), and a `DriverInterruptError("shutdown")` gives
     back the attempts of the candidates it left unfinished (`Repository.release_attempt`).
     `notify(job_id, generation, index)` is called once a candidate is resolved in the store
-    (stored here, or found resolved already): the driver's wake-up (worker.notify). `spec`: the
-    job's parsed spec when the caller has it (else read from the store once per process)."""
+    (stored here, or found resolved already): the driver's wake-up (worker.notify). The job's
+    typed spec and objective come from `cache` (the store read once per process and job, the
+    spec parsed at most once per process)."""
     results: dict[int, dict[str, Any]] = {}
     node = worker_name or socket.gethostname()
     loaded: list[tuple[TaskSpec, Any]] = []
 
     def objective() -> tuple[TaskSpec, Any]:
         if not loaded:
-            loaded.append(with_reconnect(cache.get, repo, job_id, spec))
+            loaded.append(with_reconnect(cache.get, repo, job_id))
         return loaded[0]
 
     def claim(index: int) -> np.ndarray | None:
@@ -278,7 +283,7 @@ def run_candidate(
     index: int,
     *,
     max_attempts: int,
-    cache: SpecCache,
+    cache: JobSpecs,
     worker_name: str | None = None,
     notify: Callable[[str, int, int], Any] | None = None,
 ) -> dict[str, Any]:

@@ -37,9 +37,8 @@ from store.records import DONE, PENDING
 from worker.evaluation import (
     DriverInterruptError,
     JobFailedError,
+    JobSpecs,
     ObjectiveFactory,
-    SpecCache,
-    default_objective_factory,
     run_candidates,
 )
 from worker.fairpool import POLL_S, FairPool
@@ -125,7 +124,7 @@ class LocalPoolExecutor(GenerationExecutor):
         if pool is None:
             pool = FairPool(config.workers, time_limit=config.eval_time_limit)
         self.pool: Any = pool if isinstance(pool, FairPool) else _BatchPool(pool)
-        self.cache = SpecCache(objective_factory or default_objective_factory)
+        self.cache = JobSpecs(objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
     def evaluate(self, repo, job_id, spec, generation, population, check, cut_margin=None):
@@ -146,7 +145,7 @@ class LocalPoolExecutor(GenerationExecutor):
 
             out = run_candidates(repo, job_id, generation, pending,
                                  max_attempts=self.config.max_attempts, cache=self.cache,
-                                 spec=spec, pool_run=pool_run, worker_name=self.node)
+                                 pool_run=pool_run, worker_name=self.node)
             if all(r["status"] == "skipped" for r in out):  # the job ended meanwhile
                 time.sleep(POLL_S)  # until the driver's checkpoint reads why
 
@@ -278,9 +277,14 @@ class CeleryExecutor(GenerationExecutor):
             batch = pending[0]
             n = len(batch)
             try:
+                args = [job_id, generation, batch]
                 res = self.app.send_task(
                     TASK_EVALUATE_BATCH,
-                    args=[job_id, generation, batch],
+                    args=args,
+                    # the message's printable copy of the arguments, made here in a few µs
+                    # instead of by Celery's generic saferepr
+                    argsrepr=repr(args),
+                    kwargsrepr="{}",
                     queue=self.config.queue,
                     retry=False,
                     # the store has the result: no result-backend subscription per task here,

@@ -46,8 +46,10 @@ from optim.family import (
     run_start,
 )
 from optim.family_run import default_objective
+from optim.objective import SPECS
 from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
+from sim.spec import canonical_spec
 from store import Repository
 from store.records import CANCELLED, FAILED, FAMILY_DONE
 from worker.library import store_basis
@@ -110,7 +112,7 @@ class FamilyDriver:
                 self._results.pop(family_id, None)
                 return fam.status
             try:
-                fs = parse_family(fam.spec)
+                fs = SPECS.typed(fam.spec_hash, lambda: parse_family(fam.spec))
             except FamilyError as err:
                 return self.repo.finish_family(family_id, FAILED, error=str(err)).status
             runs = plan_runs(fs)
@@ -178,9 +180,10 @@ class FamilyDriver:
             [f"{family_id}/{rid}" for rid in sorted(results) if rid != run.id])
         start = None if st.x0 is None else {"from": st.start,
                                             "x0": [float(v) for v in np.asarray(st.x0)]}
-        spec = st.spec
+        canonical = SPECS.put(canonical_spec(st.spec))  # this process' drivers: no parse
+        spec = canonical.spec
         job = self.repo.add_family_run(family_id, run.id, {
-            "spec": spec.model_dump(mode="json"), "name": spec.name,
+            "spec": canonical.document, "spec_hash": canonical.hash, "name": spec.name,
             "family": spec.family_name, "task": spec.task_type, "seed": fs.seed,
             "basis_id": basis_id, "start": start})
         log.info("family %s: run %s is job %s%s", family_id, run.id, job.id,

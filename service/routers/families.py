@@ -8,7 +8,9 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
+from cmrt.canonical import document_hash
 from optim.family import PROBES, FamilyError, parse_family, plan_runs
+from optim.objective import SPECS
 from service import paper, schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
@@ -48,7 +50,7 @@ def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
     }
     if not full:
         return out
-    fs = parse_family(fam.spec)
+    fs = SPECS.typed(fam.spec_hash, lambda: parse_family(fam.spec))  # once per process
     runs = plan_runs(fs)
     jobs = repo.family_jobs(fam.id) if fam.runs else {}
     report = repo.family_report(fam.id) if fam.status == "done" else None
@@ -98,7 +100,10 @@ async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
         budget = admission.family_budget(fs, svc.settings)
     except admission.BudgetExceeded as err:
         raise ApiError(422, str(err)) from None
-    fam = svc.repo.create_family(fs.to_dict(), family=fs.family, param=fs.param)
+    doc = fs.to_dict()
+    spec_hash = document_hash(doc)
+    SPECS.typed(spec_hash, lambda: fs)  # the family drivers of this process find it parsed
+    fam = svc.repo.create_family(doc, family=fs.family, param=fs.param, spec_hash=spec_hash)
     url = url_for(request, "get_family", family_id=fam.id)
     return JSONResponse({"id": fam.id, "url": url, "status": fam.status,
                          "runs": len(plan_runs(fs)), "budget": budget.to_dict()},

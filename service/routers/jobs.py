@@ -9,6 +9,7 @@ from fastapi.responses import JSONResponse
 
 from optim.cmaes import MIN_DIMENSION
 from optim.errors import BasisError
+from optim.objective import SPECS
 from optim.spline import decode, sample_curve
 from service import schemas
 from service.body import read_json
@@ -17,7 +18,7 @@ from service.errors import ApiError
 from service.openapi import error_responses, json_body
 from service.views import generation_out, job_cmrt_id, job_out
 from sim.errors import SpecError
-from sim.spec import parse_spec
+from sim.spec import parse_canonical
 from store import NotFound
 from store.records import JOB_STATUSES
 from worker import admission
@@ -97,17 +98,18 @@ async def submit_job(
     "basis": "<basis id>"}`. 202 with the job's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
     data, seed, basis, start = _envelope(data, seed, basis, start)
-    try:
-        spec = parse_spec(data, "spec")
+    try:  # the one parse: the drivers of this process find it by its hash (optim.objective)
+        canonical = SPECS.put(parse_canonical(data, "spec"))
     except SpecError as err:
         raise ApiError(422, str(err)) from None
+    spec = canonical.spec
     k = None if basis is None else _check_basis(svc.repo, basis, spec)
     try:  # the job's budget against the server's ceiling (worker.admission)
         budget = admission.check(spec, svc.settings, dimension=k)
     except admission.BudgetExceeded as err:
         raise ApiError(422, str(err)) from None
     warm = library_start(svc.repo, spec) if start == "library" and basis is None else None
-    job = svc.repo.create_job(spec.model_dump(mode="json"), name=spec.name,
+    job = svc.repo.create_job(canonical.document, spec_hash=canonical.hash, name=spec.name,
                               family=spec.family_name, task=spec.task_type,
                               seed=0 if seed is None else seed, basis_id=basis, start=warm)
     if svc.run_drivers:
@@ -191,7 +193,7 @@ def job_best(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
                            "curve": None,
                            "cmrt_id": job_cmrt_id(repo, job)}
     if job.best_params is not None:
-        spline = decode(parse_spec(job.spec, "spec"), job.best_params)
+        spline = decode(SPECS.stored(job.spec, job.spec_hash, "spec").spec, job.best_params)
         out["knot_times"] = [float(v) for v in spline.knot_times]
         out["values"] = [float(v) for v in spline.values]
         if spline.vertical_values is not None:

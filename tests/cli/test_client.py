@@ -57,8 +57,8 @@ def _env(**extra: str) -> dict[str, str]:
 
 def _serve(tmp: Path, **extra: str) -> tuple[subprocess.Popen, str]:
     port = _free_port()
-    env = _env(CMRT_DATA_DIR=str(tmp / "data"), CMRT_WORKERS="1", CMRT_API_PORT=str(port),
-               CMRT_LOG_LEVEL="WARNING", **extra)
+    env = _env(**{"CMRT_DATA_DIR": str(tmp / "data"), "CMRT_WORKERS": "1",
+                  "CMRT_API_PORT": str(port), "CMRT_LOG_LEVEL": "WARNING", **extra})
     proc = subprocess.Popen([str(CMRT), "serve"], env=env, cwd=tmp,
                             stdout=(tmp / "serve.log").open("wb"), stderr=subprocess.STDOUT,
                             start_new_session=True)

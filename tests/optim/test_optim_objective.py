@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from optim import objective as objective_mod
-from optim.objective import SimObjective, evaluate_params
+from optim.objective import SPECS, SimObjective, evaluate_params
 from optim.spline import flat_params
-from sim.spec import parse_spec
+from sim.spec import canonical_spec, parse_spec, text_spec
 
 
 @pytest.fixture(scope="module")
@@ -24,16 +24,43 @@ def tiny():
     )
 
 
-def test_pickles_as_spec_json_and_caches_one_simulator(tiny):
+def test_pickles_as_hash_and_text_and_caches_one_simulator(tiny):
     objective_mod.clear_cache()
     f = SimObjective(tiny)
+    canonical = canonical_spec(tiny)
     g = pickle.loads(pickle.dumps(f))
-    assert g == f and g.__getstate__() == {"spec_json": f.spec_json}
+    assert g == f and g.__getstate__() == {"spec_hash": canonical.hash,
+                                           "spec_json": canonical.text}
     a = f(flat_params(tiny))
-    sim_first = objective_mod._CACHE[f.spec_json][1]
+    sim_first = SPECS.simulator(f.canonical())
     b = g(flat_params(tiny))
-    assert objective_mod._CACHE[f.spec_json][1] is sim_first and len(objective_mod._CACHE) == 1
+    assert SPECS.simulator(g.canonical()) is sim_first and len(SPECS) == 1
     assert a.objective == b.objective and not a.fell and a.error is None
+
+
+def test_one_cache_parses_a_spec_once_and_bounds_its_simulators(tiny):
+    """A spec met in a process by its hash (a pickled objective, a stored job) is parsed on the
+    first miss only; the cache keeps the simulators of the most recently used specs."""
+    objective_mod.clear_cache()
+    canonical = canonical_spec(tiny)
+    parsed = []
+
+    def load():
+        parsed.append(1)
+        return text_spec(canonical.text, canonical.hash)
+
+    for _ in range(3):
+        assert SPECS.get(canonical.hash, load).spec == tiny
+    assert len(parsed) == 1
+    cache = objective_mod.SpecCache(size=3, simulators=1)
+    specs = [canonical_spec(tiny.model_copy(update={"name": f"tiny{i}"})) for i in range(4)]
+    sims = [cache.simulator(c) for c in specs[:2]]
+    assert sims[0] is not sims[1] and cache.simulator(specs[1]) is sims[1]
+    assert cache.simulator(specs[0]) is not sims[0]  # its simulator was dropped, its spec kept
+    assert specs[0].hash in cache
+    for c in specs[2:]:
+        cache.put(c)
+    assert specs[1].hash not in cache and len(cache) == 3  # least recently used spec dropped
 
 
 def test_flat_spline_equals_no_cmrt_and_is_deterministic(tiny):

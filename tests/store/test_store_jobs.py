@@ -30,6 +30,19 @@ def test_create_and_get_round_trip(repo: SqlRepository) -> None:
     assert got.cancel_requested is False and got.driver_owner is None
 
 
+def test_spec_is_stored_with_the_hash_of_its_canonical_text(repo: SqlRepository) -> None:
+    """The boundary's hash is kept as given; without one the store hashes the document by the
+    same rule (cmrt.canonical), so both keys name the same spec in every process."""
+    from cmrt.canonical import document_hash
+
+    computed = new_job(repo)
+    assert computed.spec_hash == document_hash(SPEC) == repo.get_job(computed.id).spec_hash
+    given = new_job(repo, spec_hash="a" * 64)
+    assert repo.get_job(given.id).spec_hash == "a" * 64
+    fam = repo.create_family({"spec": SPEC, "values": [0.3]}, family="bend", param="clip.x")
+    assert repo.get_family(fam.id).spec_hash == document_hash({"spec": SPEC, "values": [0.3]})
+
+
 def test_unknown_job_is_not_found(repo: SqlRepository) -> None:
     for call in (
         lambda: repo.get_job("nope"),

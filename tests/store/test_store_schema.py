@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
 from collections.abc import Callable
@@ -107,3 +108,39 @@ def test_postgres_connections_carry_tcp_keepalives(pg_server):
     finally:
         engine.dispose()
     assert got == [True, PG_KEEPALIVE_IDLE_S, PG_KEEPALIVE_INTERVAL_S, PG_KEEPALIVE_COUNT]
+
+
+def test_spec_hash_migration_hashes_rows_written_before(
+    backend: str, url_factory: Callable[[str], str]
+) -> None:
+    """Jobs and families stored before the spec hash existed get the hash of their canonical
+    text, the one the boundary computes for a new row."""
+    from datetime import UTC, datetime
+
+    from sqlalchemy import text
+
+    from cmrt.canonical import document_hash
+
+    engine = make_engine(url_factory(backend))
+    spec = {"name": "old", "clip": {"duration": 0.4, "preparation": 1.0}, "task": {"type": "x"}}
+    try:
+        command.upgrade(alembic_config(engine), "0003")
+        now = datetime.now(UTC).replace(tzinfo=None)
+        with engine.begin() as c:
+            c.execute(text(
+                "INSERT INTO jobs (id, name, family, task, spec, workers, status, created_at, "
+                "evaluations, iterations, cancel_requested) VALUES ('j1', 'old', 'old', 'x', "
+                ":spec, 1, 'queued', :now, 0, 0, false)"), {"spec": json.dumps(spec), "now": now})
+            c.execute(text(
+                "INSERT INTO families (id, family, param, spec, status, cancel_requested, "
+                "created_at) VALUES ('f1', 'old', 'clip.duration', :spec, 'running', false, "
+                ":now)"), {"spec": json.dumps({"spec": spec, "values": [0.4]}), "now": now})
+        init_db(engine)
+        assert _diffs(engine) == []
+        with engine.connect() as c:
+            assert c.execute(text("SELECT spec_hash FROM jobs")).scalar_one() == \
+                document_hash(spec)
+            assert c.execute(text("SELECT spec_hash FROM families")).scalar_one() == \
+                document_hash({"spec": spec, "values": [0.4]})
+    finally:
+        engine.dispose()
