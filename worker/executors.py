@@ -277,9 +277,14 @@ class CeleryExecutor(GenerationExecutor):
             batch = pending[0]
             n = len(batch)
             try:
+                args = [job_id, generation, batch]
                 res = self.app.send_task(
                     TASK_EVALUATE_BATCH,
-                    args=[job_id, generation, batch],
+                    args=args,
+                    # the message's printable copy of the arguments, made here in a few µs
+                    # instead of by Celery's generic saferepr
+                    argsrepr=repr(args),
+                    kwargsrepr="{}",
                     queue=self.config.queue,
                     retry=False,
                     # the store has the result: no result-backend subscription per task here,

@@ -3,10 +3,11 @@
 The store stays the only record of a result; a notice only says "look now". After a worker has
 stored (or given up on) a candidate it appends `"<generation>:<index>"` to the job's list
 `cmrt:done:<job id>` (one pipelined round trip: RPUSH + EXPIRE). The driver blocks on that list
-(BLPOP) instead of polling the store, so it wakes when a result lands and costs no CPU while the
-candidates run. A notice that never arrives (Redis restarted, the worker's link cut after it
-stored the result, a broker that is not Redis) costs only latency: the driver still reads the
-store at least every `FALLBACK_POLL_S` s, which is also how often it reads the cancel flag.
+(BLMPOP; BLPOP on Redis < 7) instead of polling the store, so it wakes when a result lands and
+costs no CPU while the candidates run. A notice that never arrives (Redis restarted, the
+worker's link cut after it stored the result, a broker that is not Redis) costs only latency:
+the driver still reads the store at least every `FALLBACK_POLL_S` s, which is also how often
+it reads the cancel flag.
 """
 
 from __future__ import annotations
@@ -88,6 +89,7 @@ class NoticeWaiter:
         # the socket timeout must outlast the longest BLPOP
         self._client = _redis_client(url, socket_timeout=FALLBACK_POLL_S + 5.0)
         self._down_until = 0.0
+        self._blmpop = True  # until the server says it does not know BLMPOP
 
     @property
     def available(self) -> bool:
@@ -102,14 +104,9 @@ class NoticeWaiter:
             return None
         key = notice_key(job_id)
         try:
-            # BLPOP takes whole seconds on old servers; Redis >= 6 takes a float
-            first = self._client.blpop([key], timeout=max(timeout, 0.001))
-            if first is None:
+            raw = self._pop(key, max(timeout, 0.001))
+            if not raw:
                 return []
-            raw = [first[1]]
-            more = self._client.lpop(key, 1000)
-            if more:
-                raw.extend(more)
         except Exception as err:  # noqa: BLE001 - fall back to polling the store
             self._down_until = time.monotonic() + RETRY_AFTER_S
             log.warning("job %s: result notices unavailable (%s: %s); polling the store",
@@ -117,12 +114,39 @@ class NoticeWaiter:
             return None
         return list(_parse(raw))
 
+    def _pop(self, key: str, timeout: float) -> list[Any]:
+        """Every notice queued under `key`, waiting up to `timeout` s for the first: one round
+        trip (BLMPOP, Redis >= 7) where the server has it, else BLPOP then LPOP."""
+        if self._blmpop:
+            try:
+                got = self._client.blmpop(timeout, 1, key, direction="LEFT", count=1000)
+                return [] if got is None else list(got[1])
+            except redis_response_error() as err:
+                if "unknown command" not in str(err).lower():
+                    raise
+                self._blmpop = False  # an older server: two round trips from now on
+        # BLPOP takes whole seconds on old servers; Redis >= 6 takes a float
+        first = self._client.blpop([key], timeout=timeout)
+        if first is None:
+            return []
+        raw = [first[1]]
+        more = self._client.lpop(key, 1000)
+        if more:
+            raw.extend(more)
+        return raw
+
     def discard(self, job_id: str) -> None:
         """Drop a job's pending notices (its generation is over)."""
         if self._client is None:
             return
         with contextlib.suppress(Exception):  # the list expires by itself
             self._client.delete(notice_key(job_id))
+
+
+def redis_response_error() -> type[Exception]:
+    import redis.exceptions
+
+    return redis.exceptions.ResponseError
 
 
 def _parse(raw: Iterable[bytes | str]) -> Iterable[tuple[int, int]]:
