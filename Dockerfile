@@ -21,6 +21,7 @@ COPY cli ./cli
 COPY sim ./sim
 COPY optim ./optim
 COPY store ./store
+COPY application ./application
 COPY worker ./worker
 COPY service ./service
 COPY examples ./examples
@@ -37,7 +38,7 @@ RUN python3 -m venv /opt/venv \
  && mkdir -p /opt/venv/pyode \
  && ln -s "$(ls /usr/lib/python3/dist-packages/ode.cpython-311-*.so | head -1)" /opt/venv/pyode/ \
  && echo /opt/venv/pyode > "$(/opt/venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/pyode.pth" \
- && /opt/venv/bin/python -c "import ode, sim, optim, store, worker, service, cli.main"
+ && /opt/venv/bin/python -c "import ode, sim, optim, store, application, worker, service, cli.main"
 
 ENV PATH=/opt/venv/bin:$PATH
 RUN useradd --system --create-home cmrt && mkdir -p /data && chown cmrt /data

@@ -6,7 +6,7 @@ cold, at values a family left out.
 
 The family is a `cmrt family run` report (its `.runs` folder beside it holds every run). At each
 value of --at (default: the family's leave-out values), the start a new job there gets from
-the library (`POST /jobs` with `start: "library"`, worker.library.library_start): the CMRT
+the library (`POST /jobs` with `start: "library"`, application.library.library_start): the CMRT
 interpolated between the neighbouring members, the member at that value left out (at an end of
 the range, the nearest member's optimum), searched with CMA-ES step LIBRARY_WARM_SIGMA0 in the
 full space, under the family's main rules and seed. It is compared with the family's cold
@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from application.library import LIBRARY_WARM_SIGMA0
 from optim.executors import PoolExecutor
 from optim.family import (
     converged_at,
@@ -40,7 +41,6 @@ from optim.family import (
 from optim.family_run import load_finished
 from optim.result import OptimizationResult
 from optim.run import optimize
-from worker.library import LIBRARY_WARM_SIGMA0
 
 
 @dataclass

@@ -30,7 +30,7 @@ CMRT_QUEUE                Celery queue of evaluation tasks            cmrt
 CMRT_WORKER_CONCURRENCY   `cmrt worker` processes                     None (the CPUs)
 CMRT_LOG_LEVEL            log level of `cmrt serve` / `cmrt worker`   INFO
 CMRT_MAX_JOB_SIM_SECONDS  ceiling of a job's budget (simulated s:     50000
-                          evaluations x clip length; worker.admission)
+                          evaluations x clip length; application.admission)
 CMRT_DISPATCH_WINDOW      Celery: most unresolved evaluations one job 4
                           has in the queue at once (fair share)
 CMRT_TASK_BATCH           Celery: most candidates per task            2
@@ -101,7 +101,7 @@ class Settings(BaseSettings):
     queue: Annotated[str, Field(min_length=1, max_length=200)] = "cmrt"
     #: Processes of a `cmrt worker` (None: one per CPU).
     worker_concurrency: Annotated[int | None, Field(ge=1, le=256)] = None
-    #: Ceiling of one job's budget in simulated seconds (worker.admission): above it a job is
+    #: Ceiling of one job's budget in simulated seconds (application.admission): above it a job is
     #: refused (422).
     max_job_sim_seconds: Annotated[float, Field(gt=0.0)] = 50_000.0
     #: Celery: the most evaluations of one job sent and not yet resolved at any time, so jobs

@@ -31,7 +31,7 @@ from optim.errors import InterpolationError, ParamsError
 from optim.spline import CmrtSpline, encode
 
 if TYPE_CHECKING:
-    from optim.result import OptimizationResult
+    from optim.sample import CmrtSample
     from sim.spec import TaskSpec
 
 
@@ -84,7 +84,7 @@ class InterpolatedCmrt:
         }
 
 
-def _param_of(result: OptimizationResult, key: str) -> float:
+def _param_of(result: CmrtSample, key: str) -> float:
     try:
         params = result.task_parameters()
     except Exception as err:  # noqa: BLE001 - a bad spec in a result is a domain error here
@@ -97,7 +97,7 @@ def _param_of(result: OptimizationResult, key: str) -> float:
     return float(params[key])
 
 
-def _arrays(r: OptimizationResult) -> tuple[float, np.ndarray, np.ndarray, np.ndarray | None]:
+def _arrays(r: CmrtSample) -> tuple[float, np.ndarray, np.ndarray, np.ndarray | None]:
     vy = None if r.vertical_values is None else np.asarray(r.vertical_values, dtype=float)
     return r.length, np.asarray(r.knot_times, float), np.asarray(r.values, float), vy
 
@@ -114,7 +114,7 @@ def bracket(xs: Sequence[float], value: float) -> tuple[float, float]:
 
 
 def interpolate(
-    results: Sequence[OptimizationResult],
+    results: Sequence[CmrtSample],
     value: float,
     *,
     key: str = "duration",
@@ -135,7 +135,7 @@ def interpolate(
         raise InterpolationError(f"{len(values)} parameter values for {len(results)} results")
     fam = results[0].family
     shape = (len(results[0].knot_times), results[0].vertical_values is not None)
-    best: dict[float, OptimizationResult] = {}
+    best: dict[float, CmrtSample] = {}
     for i, r in enumerate(results):
         if r.family != fam:
             raise InterpolationError(

@@ -22,6 +22,7 @@ Contracts:
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -51,13 +52,16 @@ class _Entry:
 
 
 class SpecCache:
-    """Spec hash -> typed spec, its simulator and objectives (see the module docstring)."""
+    """Spec hash -> typed spec, its simulator and objectives (see the module docstring).
+    Thread-safe: the API's request threads and its drivers share one."""
 
     def __init__(self, size: int = SPEC_CACHE_SIZE,
                  simulators: int = SIMULATOR_CACHE_SIZE) -> None:
         self.size, self.simulators = size, simulators
         self._d: OrderedDict[str, _Entry] = OrderedDict()
         self._sims: OrderedDict[str, None] = OrderedDict()  # hashes whose simulator is built
+        # re-entrant: an objective made under it puts its spec; a load under it parses once
+        self._lock = threading.RLock()
 
     def __len__(self) -> int:
         return len(self._d)
@@ -66,16 +70,17 @@ class SpecCache:
         return hash in self._d
 
     def _entry(self, hash: str, load: Callable[[], CanonicalSpec]) -> _Entry:
-        hit = self._d.get(hash)
-        if hit is not None:
-            self._d.move_to_end(hash)
-            return hit
-        entry = _Entry(load())
-        self._d[hash] = entry
-        while len(self._d) > self.size:
-            old, _ = self._d.popitem(last=False)
-            self._sims.pop(old, None)
-        return entry
+        with self._lock:
+            hit = self._d.get(hash)
+            if hit is not None:
+                self._d.move_to_end(hash)
+                return hit
+            entry = _Entry(load())
+            self._d[hash] = entry
+            while len(self._d) > self.size:
+                old, _ = self._d.popitem(last=False)
+                self._sims.pop(old, None)
+            return entry
 
     def put(self, canonical: CanonicalSpec) -> CanonicalSpec:
         """Keep a spec this process has in typed form already (no parse); the cached one if its
@@ -98,34 +103,37 @@ class SpecCache:
 
     def simulator(self, canonical: CanonicalSpec) -> Any:
         """The spec's `Rollout`, built on first use."""
-        entry = self._entry(canonical.hash, lambda: canonical)
-        if entry.simulator is None:
-            from sim.rollout import Rollout  # lazy: heavy, absent in a numerics-only setup
+        with self._lock:
+            entry = self._entry(canonical.hash, lambda: canonical)
+            if entry.simulator is None:
+                from sim.rollout import Rollout  # lazy: heavy, absent in a numerics-only setup
 
-            entry.simulator = Rollout(entry.canonical.spec)
-        self._sims[canonical.hash] = None
-        self._sims.move_to_end(canonical.hash)
-        while len(self._sims) > self.simulators:
-            old, _ = self._sims.popitem(last=False)
-            if old in self._d:
-                self._d[old].simulator = None
-        return entry.simulator
+                entry.simulator = Rollout(entry.canonical.spec)
+            self._sims[canonical.hash] = None
+            self._sims.move_to_end(canonical.hash)
+            while len(self._sims) > self.simulators:
+                old, _ = self._sims.popitem(last=False)
+                if old in self._d:
+                    self._d[old].simulator = None
+            return entry.simulator
 
     def objective(self, canonical: CanonicalSpec,
                   factory: Callable[[TaskSpec], Any] | None = None) -> Any:
         """The spec's objective: a `SimObjective` (factory None) or `factory(spec)`, made once
         per spec and factory."""
-        entry = self._entry(canonical.hash, lambda: canonical)
-        hit = entry.objectives.get(factory)
-        if hit is None:
-            hit = (SimObjective(entry.canonical) if factory is None
-                   else factory(entry.canonical.spec))
-            entry.objectives[factory] = hit
-        return hit
+        with self._lock:
+            entry = self._entry(canonical.hash, lambda: canonical)
+            hit = entry.objectives.get(factory)
+            if hit is None:
+                hit = (SimObjective(entry.canonical) if factory is None
+                       else factory(entry.canonical.spec))
+                entry.objectives[factory] = hit
+            return hit
 
     def clear(self) -> None:
-        self._d.clear()
-        self._sims.clear()
+        with self._lock:
+            self._d.clear()
+            self._sims.clear()
 
 
 #: This process's one spec cache.

@@ -36,9 +36,10 @@ import numpy as np
 
 from optim._io import atomic_write_text
 from optim.errors import BasisError, ResultFileError
+from sim.spec import CmrtConfig
 
 if TYPE_CHECKING:
-    from optim.result import OptimizationResult
+    from optim.sample import CmrtSample
     from sim.spec import TaskSpec
 
 #: Default number of kept components (paper: k = 3).
@@ -302,31 +303,33 @@ def build_basis_from_rows(
 
 
 def build_basis(
-    results: Sequence[OptimizationResult],
+    results: Sequence[CmrtSample],
     *,
     k: int = DEFAULT_K,
     margin: float = DEFAULT_MARGIN,
     family: str | None = None,
 ) -> Basis:
-    """Basis of a family of full-space results (rows: params + spec.clip.duration).
+    """Basis of a family of full-space CMRTs (optimisation results or library entries: rows
+    params + the clip's task duration).
 
     All results must share the family (or match `family` if given) and the CMRT settings.
     """
     if len(results) == 0:
         raise BasisError("no results to build a basis from")
     fam = family or results[0].family
-    cmrt0 = results[0].spec.get("cmrt") or {}
+    cmrt0 = dict(results[0].cmrt)
     dim0 = results[0].dimension
     rows = []
     for r in results:
         if r.family != fam:
             raise BasisError(f"result {r.name!r} is of family {r.family!r}, not {fam!r}")
-        if r.dimension != dim0 or (r.spec.get("cmrt") or {}) != cmrt0:
+        if r.dimension != dim0 or dict(r.cmrt) != cmrt0:
             raise BasisError(
                 f"result {r.name!r} uses different CMRT settings than {results[0].name!r}"
             )
-        rows.append(list(r.params) + [float(r.spec["clip"]["duration"])])
-    cmrt = results[0].task_spec().cmrt.model_dump()
+        rows.append(list(r.params) + [float(r.duration)])
+    # the settings as the spec model fills them (defaults included), without parsing a spec
+    cmrt = CmrtConfig.model_validate(cmrt0).model_dump()
     return build_basis_from_rows(
         np.array(rows),
         family=fam,

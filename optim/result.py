@@ -194,6 +194,16 @@ class OptimizationResult:
         """The spec's library family (its `family`, else its name)."""
         return str(self.spec.get("family") or self.spec.get("name", ""))
 
+    @property
+    def duration(self) -> float:
+        """The clip's task duration (s)."""
+        return float(self.spec["clip"]["duration"])
+
+    @property
+    def cmrt(self) -> dict[str, Any]:
+        """The spec's `cmrt` block (how the params decode)."""
+        return dict(self.spec.get("cmrt") or {})
+
     def task_spec(self) -> Any:
         """The spec as a validated `sim.spec.TaskSpec` (parsed on first use, then kept)."""
         typed = self.__dict__.get("_task_spec")

@@ -64,7 +64,7 @@ class JobRequest(BaseModel):
 
 
 class JobBudget(BaseModel):
-    """The most the job may cost (worker.admission): evaluations x clip seconds."""
+    """The most the job may cost (application.admission): evaluations x clip seconds."""
 
     evaluations: int
     clip_seconds: float

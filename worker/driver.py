@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 from sqlalchemy.exc import SQLAlchemyError
 
+from application.bases import basis_from_record
+from application.jobs import job_spec
 from cmrt.settings import Settings
 from optim.cmaes import CmaOptimizer, GenerationStats
 from optim.errors import EvaluationError
@@ -49,7 +51,6 @@ from optim.loop import (
     run_generations,
 )
 from optim.outcome import EvalOutcome
-from optim.pca import Basis
 from optim.run import result_of
 from optim.spline import decode, sample_curve
 from sim.errors import SpecError
@@ -65,7 +66,6 @@ from store.records import (
     RUNNING,
     STOPPED,
 )
-from worker.evaluation import job_spec
 from worker.executors import DriverInterruptError, GenerationExecutor, JobFailedError
 
 log = logging.getLogger(__name__)
@@ -76,23 +76,6 @@ STOPPED_RULES = frozenset({"max_evaluations"})
 
 def make_owner() -> str:
     return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
-
-
-def basis_from_record(rec: Any) -> Basis:
-    """optim Basis from a store BasisRecord (box holds score_lo/score_hi, margin, cmrt)."""
-    box = rec.box or {}
-    return Basis(
-        family=rec.family,
-        k=rec.k,
-        mean=np.asarray(rec.mean, dtype=float),
-        components=np.asarray(rec.components, dtype=float),
-        variance_explained=np.asarray(rec.variance_explained, dtype=float),
-        members=list(rec.members),
-        score_lo=np.asarray(box["score_lo"], dtype=float),
-        score_hi=np.asarray(box["score_hi"], dtype=float),
-        cmrt=dict(box.get("cmrt") or {}),
-        margin=float(box.get("margin", 0.25)),
-    )
 
 
 class _Lease:
@@ -400,6 +383,5 @@ __all__ = [
     "JobDriver",
     "StoreEvaluator",
     "StoreRunState",
-    "basis_from_record",
     "make_owner",
 ]

@@ -38,10 +38,11 @@ from typing import Any, TypeVar
 import numpy as np
 from sqlalchemy.exc import DBAPIError, OperationalError
 
+from application.jobs import job_spec
 from optim.errors import EvaluationError
 from optim.executors import EvalOutcome, evaluate_one
 from optim.objective import SPECS
-from sim.spec import CanonicalSpec, TaskSpec, stored_spec
+from sim.spec import TaskSpec
 from store import NotFound, Repository
 from store.records import DONE, PENDING
 from worker import faults
@@ -74,18 +75,6 @@ def attempts_exhausted_message(generation: int, index: int, attempts: int) -> st
         "worker process died every time (crash, out of memory, or killed past the time limit); "
         "giving up on it"
     )
-
-
-def job_spec(repo: Repository, job_id: str, spec_hash: str | None = None) -> CanonicalSpec:
-    """The typed spec of a stored job from the process's one spec cache (`SPECS`): parsed
-    from the store's document only when this process has not got it already (the route or
-    the driver of this process put it there, or an earlier candidate of any job with the same
-    spec). SpecError if the stored spec does not parse."""
-    if spec_hash is None:
-        job = repo.get_job(job_id)
-        return SPECS.stored(job.spec, job.spec_hash, f"job {job_id} spec")
-    return SPECS.get(spec_hash, lambda: stored_spec(repo.get_job(job_id).spec, spec_hash,
-                                                    f"job {job_id} spec"))
 
 
 class JobSpecs:

@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from application.bases import store_basis
+from application.families import family_spec
 from optim.errors import OptimError
 from optim.executors import Executor, PoolExecutor
 from optim.family import (
@@ -39,7 +41,6 @@ from optim.family import (
     FamilySpec,
     family_members,
     family_report,
-    parse_family,
     plan_runs,
     probe_points,
     ready_runs,
@@ -52,7 +53,6 @@ from optim.result import OptimizationResult
 from sim.spec import canonical_spec
 from store import Repository
 from store.records import CANCELLED, FAILED, FAMILY_DONE
-from worker.library import store_basis
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ class FamilyDriver:
                 self._results.pop(family_id, None)
                 return fam.status
             try:
-                fs = SPECS.typed(fam.spec_hash, lambda: parse_family(fam.spec))
+                fs = family_spec(fam)
             except FamilyError as err:
                 return self.repo.finish_family(family_id, FAILED, error=str(err)).status
             runs = plan_runs(fs)

@@ -8,6 +8,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
+from application.bases import build_library_basis
 from optim.errors import BasisError
 from service import schemas
 from service.body import read_model
@@ -15,7 +16,6 @@ from service.deps import MAX_OFFSET, RepoDep, SettingsDep
 from service.errors import ApiError
 from service.openapi import error_responses, json_body
 from service.views import basis_out
-from worker.library import build_library_basis
 
 router = APIRouter(prefix="/bases", tags=["library"])
 

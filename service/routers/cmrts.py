@@ -6,13 +6,13 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 
+from application.library import interpolate_library
 from optim.errors import InterpolationError
 from service import schemas
 from service.deps import MAX_OFFSET, LibraryParams, RepoDep, task_parameters_doc, url_for
 from service.errors import ApiError
 from service.openapi import error_responses
 from service.views import cmrt_out
-from worker.library import interpolate_library
 
 router = APIRouter(prefix="/cmrts", tags=["library"])
 

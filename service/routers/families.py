@@ -8,16 +8,15 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
-from cmrt.canonical import document_hash
-from optim.family import PROBES, FamilyError, parse_family, plan_runs
-from optim.objective import SPECS
+from application import families as app_families
+from application.admission import BudgetExceeded
+from optim.family import PROBES, FamilyError, plan_runs
 from service import paper, schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
 from service.errors import ApiError
 from service.openapi import error_responses, json_body
 from store.records import FAMILY_STATUSES
-from worker import admission
 
 router = APIRouter(prefix="/families", tags=["families"])
 
@@ -50,7 +49,7 @@ def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
     }
     if not full:
         return out
-    fs = SPECS.typed(fam.spec_hash, lambda: parse_family(fam.spec))  # once per process
+    fs = app_families.family_spec(fam)  # parsed once per process
     runs = plan_runs(fs)
     jobs = repo.family_jobs(fam.id) if fam.runs else {}
     report = repo.family_report(fam.id) if fam.status == "done" else None
@@ -92,21 +91,13 @@ async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
     an ordinary job (listed under /jobs); the whole family is admitted against the job
     budget ceiling. 202 with the family's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
-    try:
-        fs = parse_family(data)
-    except FamilyError as err:
+    try:  # validated, admitted as a whole, stored (application.families)
+        fam, budget, runs = app_families.submit_family(svc.repo, svc.settings, data)
+    except (FamilyError, BudgetExceeded) as err:
         raise ApiError(422, str(err)) from None
-    try:
-        budget = admission.family_budget(fs, svc.settings)
-    except admission.BudgetExceeded as err:
-        raise ApiError(422, str(err)) from None
-    doc = fs.to_dict()
-    spec_hash = document_hash(doc)
-    SPECS.typed(spec_hash, lambda: fs)  # the family drivers of this process find it parsed
-    fam = svc.repo.create_family(doc, family=fs.family, param=fs.param, spec_hash=spec_hash)
     url = url_for(request, "get_family", family_id=fam.id)
     return JSONResponse({"id": fam.id, "url": url, "status": fam.status,
-                         "runs": len(plan_runs(fs)), "budget": budget.to_dict()},
+                         "runs": runs, "budget": budget.to_dict()},
                         status_code=202, headers={"Location": url})
 
 

@@ -7,9 +7,10 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
-from optim.cmaes import MIN_DIMENSION
-from optim.errors import BasisError
-from optim.objective import SPECS
+from application import jobs
+from application.admission import BudgetExceeded
+from application.bases import UnusableBasisError
+from application.jobs import START_CHOICES
 from optim.spline import decode, sample_curve
 from service import schemas
 from service.body import read_json
@@ -19,20 +20,13 @@ from service.openapi import error_responses, json_body
 from service.views import generation_out, job_cmrt_id, job_out
 from sim.errors import SpecError
 from sim.spec import parse_canonical
-from store import NotFound
 from store.records import JOB_STATUSES
-from worker import admission
-from worker.library import library_start
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 #: Largest seed of a job (CMA-ES takes a 31-bit seed).
 MAX_SEED = 2**31 - 1
 _ENVELOPE_KEYS = {"spec", "seed", "basis", "start"}
-#: `start`: "library" (default) starts from the library's CMRT at the spec's task parameters
-#: when it has one (interpolated between neighbours, or stored there), else the flat spline;
-#: "cold" always from the flat spline.
-START_CHOICES = ("library", "cold")
 JobStatus = Literal[JOB_STATUSES]  # type: ignore[valid-type]
 
 
@@ -60,24 +54,6 @@ def _envelope(data: Any, seed: int | None, basis: str | None, start: str
             env_start if env_start is not None else start)
 
 
-def _check_basis(repo: Any, basis: str, spec: Any) -> int:
-    """The basis' dimension k, once it is known to fit the spec (422 otherwise)."""
-    from worker.driver import basis_from_record
-
-    try:
-        b = basis_from_record(repo.get_basis(basis))
-    except NotFound:
-        raise ApiError(422, f"basis: {basis!r} does not exist") from None
-    try:
-        b.check_spec(spec)
-    except BasisError as err:
-        raise ApiError(422, f"basis: {err}") from None
-    if b.k < MIN_DIMENSION:
-        raise ApiError(422, f"basis: {basis!r} has k = {b.k} component; a search needs at least "
-                            f"{MIN_DIMENSION} (pycma's update fails on one coordinate)")
-    return b.k
-
-
 @router.post("", status_code=202, response_model=schemas.JobAccepted,
              summary="Submit a task spec for optimisation",
              openapi_extra=json_body(
@@ -99,19 +75,15 @@ async def submit_job(
     data = await read_json(request, svc.settings.max_body_bytes)
     data, seed, basis, start = _envelope(data, seed, basis, start)
     try:  # the one parse: the drivers of this process find it by its hash (optim.objective)
-        canonical = SPECS.put(parse_canonical(data, "spec"))
+        canonical = parse_canonical(data, "spec")
     except SpecError as err:
         raise ApiError(422, str(err)) from None
-    spec = canonical.spec
-    k = None if basis is None else _check_basis(svc.repo, basis, spec)
-    try:  # the job's budget against the server's ceiling (worker.admission)
-        budget = admission.check(spec, svc.settings, dimension=k)
-    except admission.BudgetExceeded as err:
+    try:  # its basis, its budget against the server's ceiling, its start (application.jobs)
+        job, budget = jobs.submit_job(svc.repo, svc.settings, canonical,
+                                      seed=0 if seed is None else seed, basis_id=basis,
+                                      start=start)
+    except (UnusableBasisError, BudgetExceeded) as err:
         raise ApiError(422, str(err)) from None
-    warm = library_start(svc.repo, spec) if start == "library" and basis is None else None
-    job = svc.repo.create_job(canonical.document, spec_hash=canonical.hash, name=spec.name,
-                              family=spec.family_name, task=spec.task_type,
-                              seed=0 if seed is None else seed, basis_id=basis, start=warm)
     if svc.run_drivers:
         svc.runner.submit(job.id)
     url = url_for(request, "get_job", job_id=job.id)
@@ -193,7 +165,7 @@ def job_best(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
                            "curve": None,
                            "cmrt_id": job_cmrt_id(repo, job)}
     if job.best_params is not None:
-        spline = decode(SPECS.stored(job.spec, job.spec_hash, "spec").spec, job.best_params)
+        spline = decode(jobs.stored_job_spec(job).spec, job.best_params)
         out["knot_times"] = [float(v) for v in spline.knot_times]
         out["values"] = [float(v) for v in spline.values]
         if spline.vertical_values is not None:

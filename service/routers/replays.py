@@ -11,11 +11,13 @@ without its spec, or a stored candidate whose clip fails; 422: a bad body or par
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 
+from application.jobs import stored_job_spec
 from optim.errors import ParamsError
 from optim.spline import check_params
 from service import schemas
@@ -27,7 +29,7 @@ from service.replay_page import render_replay, replay_csp
 from service.routers.simulations import RETRY_AFTER_S, _params
 from service.simulations import SimulationBusyError, run_replay
 from sim.errors import SpecError
-from sim.spec import parse_spec
+from sim.spec import TaskSpec, parse_spec
 
 router = APIRouter(tags=["replays"])
 log = logging.getLogger("cmrt.service.replays")
@@ -56,14 +58,16 @@ async def _document(svc: Any, spec_data: dict[str, Any], params: list[float] | N
     return out["replay"]
 
 
-def _stored(spec_data: Any, params: Any, what: str) -> tuple[dict[str, Any], list[float]]:
-    """A stored spec and parameter vector, checked (409 when they no longer fit)."""
+def _stored(load: Callable[[], TaskSpec], document: dict[str, Any], params: Any, what: str
+            ) -> tuple[dict[str, Any], list[float]]:
+    """A stored spec (its typed form from `load`) and parameter vector, checked (409 when they
+    no longer fit); the stored document (the canonical dump of the spec) goes to the
+    simulation pool as it is."""
     try:
-        spec = parse_spec(spec_data, source=what)
-        checked = check_params(spec, params)
+        checked = check_params(load(), params)
     except (SpecError, ParamsError) as err:
         raise ApiError(409, f"{what}: cannot be replayed ({err})") from None
-    return spec.model_dump(mode="json"), [float(v) for v in checked]
+    return document, [float(v) for v in checked]
 
 
 async def _cmrt_doc(cmrt_id: str, request: Request, svc: Any, compare: bool) -> dict[str, Any]:
@@ -71,7 +75,8 @@ async def _cmrt_doc(cmrt_id: str, request: Request, svc: Any, compare: bool) -> 
     if rec.spec is None:
         raise ApiError(409, f"cmrt {cmrt_id!r}: stored without its task spec; it cannot be "
                             "replayed on its own task")
-    spec, params = _stored(rec.spec, rec.params, f"cmrt {cmrt_id!r}")
+    what = f"cmrt {cmrt_id!r}"
+    spec, params = _stored(lambda: parse_spec(rec.spec, what), rec.spec, rec.params, what)
     about = {"source": "library", "id": rec.id, "objective": rec.objective,
              "url": url_for(request, "get_cmrt", cmrt_id=rec.id)}
     return await _document(svc, spec, params, about, compare, 409)
@@ -81,7 +86,9 @@ async def _job_doc(job_id: str, request: Request, svc: Any, compare: bool) -> di
     job = svc.repo.get_job(job_id)  # store.NotFound: 404
     if job.best_params is None:
         raise ApiError(409, f"job {job_id!r}: no best candidate yet ({job.status})")
-    spec, params = _stored(job.spec, job.best_params, f"job {job_id!r}")
+    # the job's spec by its hash: parsed once per process, not at every replay
+    spec, params = _stored(lambda: stored_job_spec(job).spec, job.spec, job.best_params,
+                           f"job {job_id!r}")
     about = {"source": "job", "id": job.id, "job_status": job.status,
              "job_objective": job.best_objective,
              "url": url_for(request, "get_job", job_id=job.id)}

@@ -128,3 +128,39 @@ def test_outcome_carries_the_fall_direction_and_the_task_verdict():
     assert out.fell and out.fall_direction == "backward" == ev.fall_direction
     assert out.fall_time == ev.fall_time and 1.0 < out.fall_time < 2.0
     assert out.task_success is False and ev.task_success is False
+
+
+def test_the_spec_cache_parses_once_when_threads_race(tiny):
+    """The API's request threads and drivers share one cache: threads that miss the same spec
+    at once parse it once between them, and evictions under concurrent use raise nothing."""
+    import threading
+    import time
+
+    specs = [canonical_spec(tiny.model_copy(update={"name": f"t{i}"})) for i in range(6)]
+    loads: list[str] = []
+    errors: list[BaseException] = []
+
+    def use(cache, k: int, rounds: int) -> None:
+        def load(c):
+            loads.append(c.hash)
+            time.sleep(0.01)  # a parse takes milliseconds: the other threads miss meanwhile
+            return c
+
+        try:
+            for n in range(rounds):
+                c = specs[(k + n) % len(specs)]
+                assert cache.get(c.hash, lambda c=c: load(c)).spec.name == c.spec.name
+        except BaseException as err:  # noqa: BLE001 - reported below
+            errors.append(err)
+
+    for cache, rounds in ((objective_mod.SpecCache(), 6), (objective_mod.SpecCache(size=3), 12)):
+        loads.clear()
+        threads = [threading.Thread(target=use, args=(cache, k, rounds)) for k in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert errors == []
+        if cache.size >= len(specs):
+            assert sorted(loads) == sorted(c.hash for c in specs)  # once each
+        assert len(cache) == min(cache.size, len(specs))

@@ -1,4 +1,4 @@
-"""worker.library: interpolation reads only the neighbours it needs and answers exactly what
+"""application.library: interpolation reads only the neighbours it needs and answers exactly what
 `optim.interpolate.interpolate` answers over the whole family."""
 
 from __future__ import annotations
@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import yaml
 
+from application.library import LibraryCmrt, interpolate_library
 from optim.errors import InterpolationError
 from optim.interpolate import interpolate
 from optim.spline import decode, sample_curve
 from sim.spec import parse_spec
 from store import CmrtEntry, open_repository
-from worker.library import interpolate_library, record_to_result
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -50,7 +50,7 @@ def repo(tmp_path):
 
 def _whole_family(repo, family: str, value: float, extrapolate: bool):
     items, _ = repo.list_cmrts(family, limit=10_000)
-    members = [record_to_result(r) for r in items if r.spec is not None]
+    members = [LibraryCmrt.of(r) for r in items if r.spec is not None]
     return interpolate(members, value, key="duration", extrapolate=extrapolate).to_dict()
 
 

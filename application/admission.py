@@ -25,6 +25,16 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from cmrt.settings import Settings
+from optim.family import (
+    MAIN,
+    MEMBER,
+    PROBES,
+    REDUCED,
+    WARM,
+    FamilySpec,
+    member_spec,
+    plan_runs,
+)
 from sim.spec import TaskSpec
 
 #: Evaluations added to the cap: the final flat-spline and best-candidate re-evaluation.
@@ -84,13 +94,11 @@ def check(spec: TaskSpec, settings: Settings, *, dimension: int | None = None) -
     return b
 
 
-def family_budget(fs: Any, settings: Settings) -> Budget:
+def family_budget(fs: FamilySpec, settings: Settings) -> Budget:
     """A family's budget: the sum over the runs of its plan (members under the main or the
     warm rules, references, reduced runs searching k coordinates) and one evaluation per
     probe; BudgetExceeded when it is above the same ceiling as a job's (the whole family is
     admitted or nothing is)."""
-    from optim.family import MAIN, MEMBER, PROBES, REDUCED, WARM, member_spec, plan_runs
-
     evaluations, sim = 0, 0.0
     clip = 0.0
     for run in plan_runs(fs):

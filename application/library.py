@@ -1,17 +1,18 @@
-"""Library operations on stored CMRTs: interpolation and PCA bases (store + optim glue, used
-by the API; no HTTP here)."""
+"""The library of learned CMRTs: interpolation between its entries and where a new job starts
+from it (store + optim glue; no HTTP here). A library entry reaches `optim.interpolate` and
+`optim.pca` as a `LibraryCmrt` (the `optim.sample.CmrtSample` they read), built from the stored
+record without parsing its spec."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from optim.errors import BasisError, InterpolationError, ParamsError
+from optim.errors import InterpolationError, ParamsError
 from optim.interpolate import bracket, interpolate
-from optim.pca import DEFAULT_K, Basis, build_basis
-from optim.result import OptimizationResult
 from optim.spline import CmrtSpline, encode, sample_curve
 from sim.spec import TaskSpec
 from store import CmrtKey, CmrtRecord, Repository
@@ -20,43 +21,52 @@ from store import CmrtKey, CmrtRecord, Repository
 MAX_MEMBERS = 10_000
 
 
-def record_to_result(rec: CmrtRecord) -> OptimizationResult:
-    """An OptimizationResult view of a library CMRT (for optim.interpolate / optim.pca)."""
-    if rec.spec is None:
-        raise InterpolationError(f"CMRT {rec.id} has no stored spec")
-    values = rec.values
-    vertical = None
-    if values and isinstance(values[0], list | tuple):
-        vertical = [float(v[1]) for v in values]
-        values = [float(v[0]) for v in values]
-    spec = dict(rec.spec)
-    spec["name"] = rec.id  # results are named by their library id in the answers
-    spec["family"] = rec.family
-    return OptimizationResult(
-        spec=spec,
-        dimension=len(rec.params),
-        params=[float(v) for v in rec.params],
-        length=rec.preparation + rec.duration + rec.decay,
-        knot_times=[float(v) for v in rec.knots],
-        values=[float(v) for v in values],
-        vertical_values=vertical,
-        curve=rec.curve,
-        objective=rec.objective,
-        fell=rec.fell,
-        baseline_objective=rec.objective_without if rec.objective_without is not None
-        else rec.objective,
-        baseline_fell=bool(rec.fell_without),
-        evaluations=0,
-        iterations=0,
-        stop_rule="library",
-        wall_seconds=0.0,
-        seed=0,
-    )
+@dataclass(frozen=True)
+class LibraryCmrt:
+    """A library CMRT as `optim.interpolate` and `optim.pca` read it (`optim.sample.CmrtSample`):
+    named by its library id, its spline, objective and the stored task parameters."""
+
+    name: str
+    family: str
+    params: list[float]
+    length: float
+    knot_times: list[float]
+    values: list[float]
+    vertical_values: list[float] | None
+    objective: float
+    duration: float
+    cmrt: dict[str, Any] = field(default_factory=dict)
+    parameters: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def dimension(self) -> int:
+        return len(self.params)
+
+    def task_parameters(self) -> dict[str, float]:
+        return dict(self.parameters)
+
+    @classmethod
+    def of(cls, rec: CmrtRecord) -> LibraryCmrt:
+        if rec.spec is None:
+            raise InterpolationError(f"CMRT {rec.id} has no stored spec")
+        values, vertical = rec.values, None
+        if values and isinstance(values[0], list | tuple):
+            vertical = [float(v[1]) for v in values]
+            values = [v[0] for v in values]
+        return cls(
+            name=rec.id, family=rec.family, params=[float(v) for v in rec.params],
+            length=rec.preparation + rec.duration + rec.decay,
+            knot_times=[float(v) for v in rec.knots], values=[float(v) for v in values],
+            vertical_values=vertical, objective=float(rec.objective),
+            duration=float(rec.duration), cmrt=dict(rec.spec.get("cmrt") or {}),
+            parameters={k: float(v) for k, v in rec.task_parameters.items()},
+        )
 
 
-def _family(repo: Repository, family: str) -> list[CmrtRecord]:
+def library_members(repo: Repository, family: str) -> list[LibraryCmrt]:
+    """Every library CMRT of `family` that has its spec (at most MAX_MEMBERS), newest first."""
     items, _ = repo.list_cmrts(family, limit=MAX_MEMBERS)
-    return [r for r in items if r.spec is not None]
+    return [LibraryCmrt.of(r) for r in items if r.spec is not None]
 
 
 def interpolate_library(
@@ -86,7 +96,7 @@ def interpolate_library(
         raise InterpolationError(f"no library CMRTs of family {family!r} with parameter {key!r}")
     members = [repo.get_cmrt(cid) for cid in _neighbour_ids(keys, key, float(value))]
     by_id = {r.id: r for r in members}
-    out = interpolate([record_to_result(r) for r in members], value, key=key,
+    out = interpolate([LibraryCmrt.of(r) for r in members], value, key=key,
                       extrapolate=extrapolate)
     spline = out.spline()
     d = out.to_dict()
@@ -183,29 +193,5 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
     return [best[a].id, best[b].id]
 
 
-def build_library_basis(repo: Repository, family: str, k: int = DEFAULT_K) -> str:
-    """PCA basis of every library CMRT of `family`; stored, returns its id."""
-    members = _family(repo, family)
-    if not members:
-        raise BasisError(f"no library CMRTs of family {family!r}")
-    basis = build_basis([record_to_result(r) for r in members], k=k, family=family)
-    return store_basis(repo, basis, family, [r.id for r in members])
-
-
-def store_basis(repo: Repository, basis: Basis, family: str, members: list[str]) -> str:
-    """Keep a PCA basis in the store (`basis_from_record` reads it back); returns its id."""
-    return repo.add_basis(
-        family=family,
-        k=basis.k,
-        mean=[float(v) for v in basis.mean],
-        components=[[float(v) for v in row] for row in basis.components],
-        variance_explained=[float(v) for v in basis.variance_explained],
-        members=members,
-        box={
-            "score_lo": [float(v) for v in basis.score_lo],
-            "score_hi": [float(v) for v in basis.score_hi],
-            "margin": basis.margin,
-            "cmrt": basis.cmrt,
-            "content_id": basis.id,
-        },
-    )
+__all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "LibraryCmrt", "interpolate_library",
+           "library_members", "library_start"]

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from application.admission import Budget, BudgetExceeded, budget, check, default_popsize
 from cmrt.settings import Settings
 from sim.spec import parse_spec
-from worker.admission import Budget, BudgetExceeded, budget, check, default_popsize
 
 
 def _spec(popsize=None, max_evaluations=400, duration=0.4):
