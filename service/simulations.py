@@ -19,6 +19,7 @@ from typing import Any
 
 from optim.procpool import SlotPool, TimeLimitError, WorkerDiedError
 from sim.errors import SimError
+from worker.fairpool import FORKSERVER_PRELOAD
 
 log = logging.getLogger("cmrt.service.simulations")
 
@@ -102,9 +103,11 @@ class SimulationPool:
     def _get(self) -> SlotPool:
         with self._lock:
             if self._pool is None:
-                # forked from a fork server, never from this threaded server process
+                # forked from a fork server (never from this threaded server process) that
+                # has imported the simulator, like the evaluation pool's: a clip's process
+                # killed past its time limit is replaced in a fraction of a second
                 self._pool = SlotPool(self.workers, start_method="forkserver",
-                                      time_limit=self.time_limit)
+                                      preload=FORKSERVER_PRELOAD, time_limit=self.time_limit)
             return self._pool
 
     def pids(self) -> list[int]:
