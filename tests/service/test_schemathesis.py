@@ -200,3 +200,5 @@ def test_schemathesis_all_checks(served, tmp_path):
                                                                 "stateful"))
     assert accepted["POST /jobs"] > 0, "the documented example spec was not accepted"
     assert accepted["POST /jobs/{job_id}/cancel"] > 0, "the queued job was not cancelled"
+    assert accepted["GET /families/{family_id}"] > 0, "the seeded family was not found"
+    assert accepted["POST /families/{family_id}/cancel"] > 0, "the family was not cancelled"
