@@ -66,11 +66,20 @@ class RunningSum:
     #: s of wall time per check, times 1 + 5 |x - centre|: worse candidates take longer, so
     #: a pool's last unfinished candidate is often the worst (exercises the pool's cut path).
     sleep: float = 0.0
+    #: s to wait, before the first step, for a finite `stop_above` (a pool posts a bound to
+    #: the last candidate of a generation only once every other one is done): a candidate known
+    #: to be evaluated last then meets its bound from its first check, as in a serial run, so
+    #: whether it is cut depends on the values alone, never on timing. Changes no value.
+    hold: float = 0.0
     supports_cut = True
 
     def __call__(self, x: np.ndarray, stop_above=None) -> EvalOutcome:  # noqa: ANN001
         d = np.asarray(x, dtype=float) - self.centre
         pause = self.sleep * (1.0 + 5.0 * float(np.sqrt(d @ d)))
+        if stop_above is not None and self.hold > 0:
+            until = time.monotonic() + self.hold
+            while stop_above() == float("inf") and time.monotonic() < until:
+                time.sleep(1e-3)
         sq = 0.0
         for k in range(self.steps):
             if k % self.check_every == 0 and pause:

@@ -12,18 +12,22 @@ every unfinished family:
         (`start`: {"from": ..., "x0": ...}) and, for a reduced run, the leave-one-out basis
         stored as a PCA basis; the job is handed to `submit` so a driver starts at once
     the probes (the interpolated CMRT at each interior value, once every member exists):
-        evaluated in a process of their own, kept with the family
+        handed to a thread of the driver's own, evaluated there in a process of their own;
+        a later step picks their outcomes up and keeps them with the family (the step never
+        waits for them, so no other family's step waits either)
     every run finished -> `optim.family.family_report` kept as the family's report; `done`
 
 The same plan, starts, seeds and stopping rules as `cmrt family run` (optim.family_run), and
 a job's result document is the command line's (`optim.run.result_of`), so a family run here
 gives the same members and checks as the command line with the same seeds. Nothing lives only
 in memory: a driver (or API) killed at any point is replaced by the next scan, which finds the
-jobs already made and resumes them like any job.
+jobs already made and resumes them like any job; probes under way in a process that died are
+evaluated again (the same points, the same outcomes).
 """
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import logging
 import threading
 from collections.abc import Callable
@@ -33,7 +37,7 @@ import numpy as np
 
 from application.bases import store_basis
 from application.families import family_spec
-from optim.errors import OptimError
+from optim.errors import EvaluationError, OptimError
 from optim.executors import Executor, PoolExecutor
 from optim.family import (
     PROBES,
@@ -62,7 +66,8 @@ ObjectiveFor = Callable[[FamilySpec, float], Callable[..., Any]]
 class FamilyDriver:
     """Advances families (see module docstring). `submit(job_id)` starts a job's driver now
     (the scan would find it later anyway); `probe_executor` evaluates the probes (default: a
-    process of its own, so a simulation never holds this process' interpreter)."""
+    process of its own, so a simulation never holds this process' interpreter), called from a
+    thread of the driver's own so that `advance` never waits for a simulation."""
 
     def __init__(
         self,
@@ -80,28 +85,46 @@ class FamilyDriver:
         self._lock = threading.Lock()
         #: Parsed results of finished runs, per family (a finished job's result never changes).
         self._results: dict[str, dict[str, OptimizationResult]] = {}
+        #: Probes under way, per family: their outcomes by value once evaluated.
+        self._probing: dict[str, cf.Future] = {}
+        self._probe_thread: cf.ThreadPoolExecutor | None = None
+        self._closed = False
 
     def close(self) -> None:
-        if self._own_executor and self._probe_executor is not None:
-            self._probe_executor.close()
-            self._probe_executor = None
+        """Stop evaluating probes (an evaluation under way ends with its process; a later
+        driver evaluates them again) and release the probe executor if it is the driver's."""
+        with self._lock:
+            self._closed = True
+            for fut in self._probing.values():
+                fut.cancel()
+            self._probing.clear()
+            thread, self._probe_thread = self._probe_thread, None
+        if thread is not None:
+            thread.shutdown(wait=False, cancel_futures=True)
+        with self._lock:
+            if self._own_executor and self._probe_executor is not None:
+                self._probe_executor.close()
+                self._probe_executor = None
 
     def _probes_executor(self) -> Executor:
-        if self._probe_executor is None:
-            self._probe_executor = PoolExecutor(1)
-        return self._probe_executor
+        with self._lock:  # the probe thread asks; close() may run meanwhile
+            if self._closed:
+                raise EvaluationError("the family driver is closed")
+            if self._probe_executor is None:
+                self._probe_executor = PoolExecutor(1)
+            return self._probe_executor
 
     def advance(self, family_id: str) -> str:
         """One step of the family (see module docstring); returns its status after it. A
         domain error of the plan's arithmetic (a basis or an interpolation that cannot be
-        made from these members) fails the family with its message: the same members would
-        give it again at every step."""
+        made from these members) or of the probes' evaluation fails the family with its
+        message: the same members would give it again at every step."""
         try:
             return self._advance(family_id)
         except OptimError as err:
             log.error("family %s: %s", family_id, err)
             with self._lock:
-                self._results.pop(family_id, None)
+                self._forget(family_id)
                 self._cancel_jobs(self.repo.family_jobs(family_id))
                 return self.repo.finish_family(family_id, FAILED, error=str(err)).status
 
@@ -109,11 +132,12 @@ class FamilyDriver:
         with self._lock:  # one step at a time in this process; other processes may race
             fam = self.repo.get_family(family_id)
             if fam.terminal:
-                self._results.pop(family_id, None)
+                self._forget(family_id)
                 return fam.status
             try:
                 fs = family_spec(fam)
             except FamilyError as err:
+                self._forget(family_id)
                 return self.repo.finish_family(family_id, FAILED, error=str(err)).status
             runs = plan_runs(fs)
             jobs = self.repo.family_jobs(family_id)
@@ -124,7 +148,7 @@ class FamilyDriver:
                     why = job.error or job.status
                     log.error("family %s: run %s (job %s) %s", family_id, run_id, job.id, why)
                     self._cancel_jobs(jobs)
-                    self._results.pop(family_id, None)
+                    self._forget(family_id)
                     return self.repo.finish_family(
                         family_id, FAILED, error=f"run {run_id} (job {job.id}): {why}").status
             results = self._finished(family_id, jobs)
@@ -133,19 +157,28 @@ class FamilyDriver:
             running = {rid for rid, j in jobs.items() if rid not in results}
             for run in ready_runs(runs, done, running):
                 if run.kind == PROBES:
-                    probes = self._evaluate_probes(family_id, fs, runs, results)
-                    done.add(PROBES)
+                    probes = self._probes(family_id, fs, runs, results)
+                    if probes is not None:
+                        done.add(PROBES)
                     continue
                 self._start(family_id, fs, run, runs, results)
             if all(r.id in done for r in runs):
                 report = family_report(fs, results, probes,
                                        extra={"family_id": family_id,
                                               "jobs": {k: j.id for k, j in jobs.items()}})
-                self._results.pop(family_id, None)
+                self._forget(family_id)
                 return self.repo.finish_family(family_id, FAMILY_DONE, report=report).status
             return fam.status
 
     # -- pieces --------------------------------------------------------------------------------
+    def _forget(self, family_id: str) -> None:
+        """Drop what this process keeps of a family that ends (its probes' evaluation too,
+        should it still be queued)."""
+        self._results.pop(family_id, None)
+        fut = self._probing.pop(family_id, None)
+        if fut is not None:
+            fut.cancel()
+
     def _cancel_jobs(self, jobs: dict[str, Any]) -> list[Any]:
         live = [j for j in jobs.values() if not j.terminal]
         for j in live:
@@ -156,7 +189,7 @@ class FamilyDriver:
         live = self._cancel_jobs(jobs)
         if any(not self.repo.get_job(j.id).terminal for j in live):
             return self.repo.get_family(family_id).status  # their drivers stop them
-        self._results.pop(family_id, None)
+        self._forget(family_id)
         return self.repo.finish_family(family_id, CANCELLED).status
 
     def _finished(self, family_id: str, jobs: dict[str, Any]) -> dict[str, OptimizationResult]:
@@ -191,15 +224,34 @@ class FamilyDriver:
         if not job.terminal:
             self.submit(job.id)
 
-    def _evaluate_probes(self, family_id: str, fs: FamilySpec, runs: list[Any],
-                         results: dict[str, OptimizationResult]) -> dict[float, EvalOutcome]:
-        members = {v: res for v, (_, res) in family_members(runs, results).items()}
-        ex = self._probes_executor()
-        got: dict[float, EvalOutcome] = {}
-        for v, params, _lo, _hi in probe_points(fs, members):
-            got[v] = ex.map(self.objective_for(fs, v), [params])[0]
+    def _probes(self, family_id: str, fs: FamilySpec, runs: list[Any],
+                results: dict[str, OptimizationResult]) -> dict[float, EvalOutcome] | None:
+        """The probes' outcomes once evaluated (then kept with the family), else None: their
+        evaluation is handed to the probe thread at the first call and picked up by a later
+        one. An evaluation that failed is raised here, as it would have been in this step."""
+        fut = self._probing.get(family_id)
+        if fut is None:
+            members = {v: res for v, (_, res) in family_members(runs, results).items()}
+            points = [(v, params) for v, params, _lo, _hi in probe_points(fs, members)]
+            if self._probe_thread is None:
+                self._probe_thread = cf.ThreadPoolExecutor(
+                    max_workers=1, thread_name_prefix="family-probes")
+            self._probing[family_id] = self._probe_thread.submit(self._evaluate_probes, fs,
+                                                                 points)
+            log.info("family %s: evaluating %d probes", family_id, len(points))
+            return None
+        if not fut.done():
+            return None
+        del self._probing[family_id]
+        got = fut.result()  # an error fails the family (advance) or is retried next scan
         self.repo.set_family_probes(family_id, [[v, o.to_dict()] for v, o in sorted(got.items())])
         return got
+
+    def _evaluate_probes(self, fs: FamilySpec,
+                         points: list[tuple[float, np.ndarray]]) -> dict[float, EvalOutcome]:
+        """In the probe thread: each probe's outcome, evaluated through the probe executor."""
+        ex = self._probes_executor()
+        return {v: ex.map(self.objective_for(fs, v), [params])[0] for v, params in points}
 
 
 __all__ = ["FamilyDriver"]

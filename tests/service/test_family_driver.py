@@ -4,6 +4,8 @@ cancel and a failed run end the family (synthetic objectives)."""
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -46,8 +48,9 @@ def executor(config):
 
 
 def _drive(repo, config, executor, family_id: str, *, stop_after: int | None = None,
-           steps: int = 200) -> str:
-    """Advance the family, running each job it starts to its end in this thread."""
+           seconds: float = 60.0, objective_for: Any = _objective) -> str:
+    """Advance the family, running each job it starts to its end in this thread (the probes
+    are evaluated in the driver's probe thread: a step that starts nothing waits a little)."""
     started: list[str] = []
 
     def submit(job_id: str) -> None:
@@ -55,12 +58,20 @@ def _drive(repo, config, executor, family_id: str, *, stop_after: int | None = N
         JobDriver(repo, job_id, executor, config).run()
 
     driver = FamilyDriver(repo, submit=submit, probe_executor=SerialExecutor(),
-                          objective_for=_objective)
+                          objective_for=objective_for)
     status = FAMILY_RUNNING
-    for _ in range(steps):
-        status = driver.advance(family_id)
-        if status != FAMILY_RUNNING or (stop_after is not None and len(started) >= stop_after):
-            break
+    deadline = time.monotonic() + seconds
+    try:
+        while time.monotonic() < deadline:
+            before = len(started)
+            status = driver.advance(family_id)
+            if status != FAMILY_RUNNING or (stop_after is not None
+                                            and len(started) >= stop_after):
+                break
+            if len(started) == before:
+                time.sleep(0.01)
+    finally:
+        driver.close()
     return status
 
 
@@ -138,3 +149,54 @@ def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, conf
     flat.close()
     fam = repo.get_family(fid)
     assert status == FAILED and "identical" in fam.error, fam.error
+
+
+class Gated:
+    """A probe's objective that waits for `gate` (30 s at most) before evaluating `inner`:
+    the probes of a family take as long as the test wants."""
+
+    def __init__(self, inner: LineFamily, gate: threading.Event,
+                 entered: threading.Event) -> None:
+        self.inner, self.gate, self.entered = inner, gate, entered
+
+    def __call__(self, x: Any) -> Any:
+        self.entered.set()
+        self.gate.wait(30)
+        return self.inner(x)
+
+
+def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, tmp_path: Path):
+    """While one family's probes are evaluated (held here), its steps and another family's
+    go on; the probes' outcomes are picked up by a later step and the checks are the command
+    line's."""
+    gate, entered = threading.Event(), threading.Event()
+
+    def gated(fs: Any, value: float) -> Gated:
+        return Gated(_objective(fs, value), gate, entered)
+
+    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, executor, config).run(),
+                          probe_executor=SerialExecutor(), objective_for=gated)
+    a = _create(repo, _family())
+    try:
+        deadline = time.monotonic() + 60
+        while not entered.is_set():  # A's members, then its probes handed to the thread
+            assert driver.advance(a) == FAMILY_RUNNING and time.monotonic() < deadline
+        assert driver.advance(a) == FAMILY_RUNNING  # its own step does not wait either
+        b = _create(repo, _family(seed=5))
+        assert driver.advance(b) == FAMILY_RUNNING
+        made = repo.get_family(b).runs
+        assert made and all(repo.get_job(j).terminal for j in made.values())  # B's runs ran
+        assert not gate.is_set() and repo.family_probes(a) is None  # A's probes still held
+        gate.set()
+        status = FAMILY_RUNNING
+        while status == FAMILY_RUNNING and time.monotonic() < deadline + 60:
+            status = driver.advance(a)
+            time.sleep(0.01)
+        assert status == FAMILY_DONE and repo.family_probes(a) is not None
+    finally:
+        gate.set()
+        driver.close()
+    fs = parse_family(_family())
+    local = run_family(fs, SerialExecutor(), tmp_path / "cli", objective_for=_objective)
+    assert repo.family_report(a)["checks"] == family_checks(fs, local.results,
+                                                            local.probes).to_dict()
