@@ -152,16 +152,18 @@ def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, conf
 
 
 class Gated:
-    """A probe's objective that waits for `gate` (30 s at most) before evaluating `inner`:
-    the probes of a family take as long as the test wants."""
+    """A probe's objective that waits for `gate` (120 s at most) before evaluating `inner`:
+    the probes of a family take as long as the test wants; `entered` and `left` tell when a
+    probe started and when one stopped waiting."""
 
-    def __init__(self, inner: LineFamily, gate: threading.Event,
-                 entered: threading.Event) -> None:
-        self.inner, self.gate, self.entered = inner, gate, entered
+    def __init__(self, inner: LineFamily, gate: threading.Event, entered: threading.Event,
+                 left: threading.Event) -> None:
+        self.inner, self.gate, self.entered, self.left = inner, gate, entered, left
 
     def __call__(self, x: Any) -> Any:
         self.entered.set()
-        self.gate.wait(30)
+        self.gate.wait(120)
+        self.left.set()
         return self.inner(x)
 
 
@@ -169,10 +171,10 @@ def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, tmp
     """While one family's probes are evaluated (held here), its steps and another family's
     go on; the probes' outcomes are picked up by a later step and the checks are the command
     line's."""
-    gate, entered = threading.Event(), threading.Event()
+    gate, entered, left = threading.Event(), threading.Event(), threading.Event()
 
     def gated(fs: Any, value: float) -> Gated:
-        return Gated(_objective(fs, value), gate, entered)
+        return Gated(_objective(fs, value), gate, entered, left)
 
     driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, executor, config).run(),
                           probe_executor=SerialExecutor(), objective_for=gated)
@@ -186,7 +188,7 @@ def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, tmp
         assert driver.advance(b) == FAMILY_RUNNING
         made = repo.get_family(b).runs
         assert made and all(repo.get_job(j).terminal for j in made.values())  # B's runs ran
-        assert not gate.is_set() and repo.family_probes(a) is None  # A's probes still held
+        assert not left.is_set() and repo.family_probes(a) is None  # A's probe still runs
         gate.set()
         status = FAMILY_RUNNING
         while status == FAMILY_RUNNING and time.monotonic() < deadline + 60:
