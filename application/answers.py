@@ -393,10 +393,10 @@ def _message(why: str, out: dict[str, Any], best: dict[str, Any], tried: list[di
     if verdict == "weak":
         return (f"{why}; the best the library holds at {key} = {value:g} stands, objective "
                 f"{o['objective']:.4g}, but is more than {WEAK_MARGIN:.0%} above the library's "
-                f"prediction {out['predicted_objective']:.4g}: refine it (POST /cmrts/refine)")
+                f"prediction {out['predicted_objective']:.4g}: refine it (POST /refinements)")
     return (f"NOT A GOOD ANSWER: no CMRT the library holds stands at {key} = {value:g} "
             f"({'; '.join(t['source'] + ' ' + _what_went_wrong(t) for t in tried)}); "
-            "refine it (POST /cmrts/refine) or optimise a job there")
+            "refine it (POST /refinements) or optimise a job there")
 
 
 def _what_went_wrong(t: dict[str, Any]) -> str:

@@ -5,14 +5,10 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
-from fastapi.responses import JSONResponse
 
 from application import answers
-from application.admission import BudgetExceeded
-from application.bases import UnusableBasisError
 from optim.errors import InterpolationError
 from service import schemas
-from service.body import read_model
 from service.deps import (
     MAX_OFFSET,
     LibraryParams,
@@ -22,7 +18,7 @@ from service.deps import (
     url_for,
 )
 from service.errors import ApiError
-from service.openapi import error_responses, json_body
+from service.openapi import error_responses
 from service.routers.simulations import RETRY_AFTER_S
 from service.simulations import SimulationBusyError
 from service.views import cmrt_out
@@ -76,7 +72,7 @@ def library_families(repo: RepoDep) -> dict[str, Any]:
     return {"items": items, "total": len(items)}
 
 
-def _query_point(repo: Any, family: str, params: dict[str, float], along: str | None,
+def query_point(repo: Any, family: str, params: dict[str, float], along: str | None,
                  where: str = "") -> tuple[str, float, dict[str, float], str | None]:
     """(library key, value, the other parameters, a note on a translated name) of a query at
     task parameters `params` (`along` names the interpolated one when there are several)."""
@@ -141,7 +137,7 @@ def interpolate_cmrt(
     nearer member is served), and with `verify` its simulated `outcome` and `verdict`.
     Outside the stored range only with `extrapolate=true`. With several parameters, `along`
     names the interpolated one and the others must match exactly."""
-    key, value, filters, note = _query_point(svc.repo, family, params, along)
+    key, value, filters, note = query_point(svc.repo, family, params, along)
     simulate = svc.simulations.simulate if verify else None
     try:
         out = answers.serve(svc.repo, family, key, value, filters=filters,
@@ -156,38 +152,6 @@ def interpolate_cmrt(
         n["url"] = url_for(request, "get_cmrt", cmrt_id=n["id"])
     out["refine"] = _refine_offer(request, out)
     return out
-
-
-@router.post("/refine", status_code=202, response_model=schemas.RefineAccepted,
-             summary="Refine the library's answer in the family's PCA basis",
-             openapi_extra=json_body(schemas.RefineRequest, example=schemas.REFINE_EXAMPLE),
-             responses=error_responses(400, 413, 415, 422))
-async def refine_cmrt(request: Request, svc: ServicesDep) -> JSONResponse:
-    """Body `{"family": "domino", "parameters": {"mass": 45}, "basis"?: id,
-    "max_evaluations"?: 150, "seed"?: 0}`: a job searching the family's newest PCA basis (or
-    `basis`), started at the best answer the library has there, under a small budget; its
-    result joins the library as a member (`source: refined`). 202 with the job."""
-    req = await read_model(request, schemas.RefineRequest, svc.settings.max_body_bytes)
-    key, value, filters, note = _query_point(svc.repo, req.family, dict(req.parameters),
-                                             req.along, "parameters: ")
-    try:
-        job, budget, answer = answers.refine_job(
-            svc.repo, svc.settings, req.family, key, value, filters=filters,
-            basis_id=req.basis, max_evaluations=req.max_evaluations, seed=req.seed,
-            extrapolate=req.extrapolate)
-    except (InterpolationError, answers.AnswerError, UnusableBasisError,
-            BudgetExceeded) as err:
-        raise ApiError(422, str(err)) from None
-    if svc.run_drivers:
-        svc.runner.submit(job.id)
-    answer["note"] = note
-    for n in answer["neighbours"]:
-        n["url"] = url_for(request, "get_cmrt", cmrt_id=n["id"])
-    url = url_for(request, "get_job", job_id=job.id)
-    body = {"id": job.id, "url": url, "status": job.status, "budget": budget.to_dict(),
-            "basis_id": job.basis_id, "start": job.start, "answer": answer}
-    return JSONResponse(schemas.RefineAccepted.model_validate(body).model_dump(mode="json"),
-                        status_code=202, headers={"Location": url})
 
 
 @router.get("/{cmrt_id}", summary="One CMRT with its curve",

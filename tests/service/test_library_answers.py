@@ -1,4 +1,4 @@
-"""`GET /cmrts/interpolate?verify=true` and `POST /cmrts/refine` over HTTP: the answer's
+"""`GET /cmrts/interpolate?verify=true` and `POST /refinements` over HTTP: the answer's
 fields, a verified answer simulated once and then kept, a refinement that grows the family, and
 the bad-input cases (4xx naming the field, nothing stored)."""
 
@@ -51,11 +51,11 @@ def test_verified_answer_over_http_is_kept(client, library):
 
 
 def test_refine_grows_the_family(client, library, repo):
-    r = client.post("/cmrts/refine", json={"family": "bend", "parameters": {"duration": 0.45}})
+    r = client.post("/refinements", json={"family": "bend", "parameters": {"duration": 0.45}})
     assert r.status_code == 422 and r.json()["detail"].startswith("basis: ")
     assert repo.list_jobs()[1] == 0
     assert client.post("/bases", json={"family": "bend", "k": 2}).status_code == 201
-    r = client.post("/cmrts/refine", json={"family": "bend", "parameters": {"duration": 0.45},
+    r = client.post("/refinements", json={"family": "bend", "parameters": {"duration": 0.45},
                                            "max_evaluations": 30})
     assert r.status_code == 202, r.text
     job = r.json()
@@ -82,7 +82,7 @@ def test_refine_grows_the_family(client, library, repo):
 def test_bad_queries_are_refused(client, library, repo, query, field):
     r = client.get("/cmrts/interpolate", params={**query, "verify": "true"})
     assert r.status_code == 422 and field in r.json()["detail"], r.text
-    r = client.post("/cmrts/refine", json={"family": query["family"], "parameters": {
+    r = client.post("/refinements", json={"family": query["family"], "parameters": {
         k: v for k, v in query.items() if k != "family"}})
     assert r.status_code == 422 and field in r.json()["detail"], r.text
     assert repo.list_jobs()[1] == 0 and repo.list_cmrts()[1] == 4
@@ -93,6 +93,6 @@ def test_refine_body_is_checked(client, library, repo):
                         ({"family": "bend", "parameters": {"duration": 0.45}, "x": 1}, "x"),
                         ({"family": "bend", "parameters": {"duration": 0.45},
                           "max_evaluations": 0}, "max_evaluations")]:
-        r = client.post("/cmrts/refine", json=body)
+        r = client.post("/refinements", json=body)
         assert r.status_code == 422 and field in r.text, r.text
     assert repo.list_jobs()[1] == 0
