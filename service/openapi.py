@@ -142,8 +142,9 @@ def build_openapi(app: FastAPI, settings: Settings,
                   always: tuple[int, ...] = (400, 422)) -> dict[str, Any]:
     """The exact document of `app` under `settings` (see the module docstring). `always`:
     error codes every operation can answer (400: a Host that is not the service's, see
-    service.security; 422: a NUL character in the path or query, see service.deps); every operation but the `NO_DATABASE` pages may answer 503 with
-    `Retry-After` when the database is unreachable (service.errors). With an API token, the
+    service.security; 422: a NUL character in the path or query, see service.deps); every
+    operation but the `NO_DATABASE` pages may answer 503 with `Retry-After` when the database
+    is unreachable (service.errors). With an API token, the
     operations that need it say so (`security`, 401); state-changing ones answer 403 to
     requests from another origin (service.security)."""
     doc = get_openapi(title=app.title, version=app.version, description=app.description,
