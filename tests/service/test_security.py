@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 from svc_helpers import LOCAL, bend_spec
 
 from cmrt.settings import Settings
+from service import security
 from service.app import create_app
 from service.security import PAGE_CSP, allowed_hosts, host_allowed, host_warning
 
@@ -344,3 +345,21 @@ def test_a_wildcard_bind_without_names_warns():
     assert host_warning(Settings(api_host="0.0.0.0", public_url="https://cmrt.example")) is None
     assert host_warning(Settings()) is None  # loopback bind: loopback names suffice
     assert host_allowed(None, allowed_hosts(Settings()))  # HTTP/1.0 without Host: no browser
+
+
+def test_allow_sets_are_remembered_per_path_within_a_bound(config, repo, local_executor,
+                                                           monkeypatch):
+    """The edge remembers each path's Allow set (the routes are fixed) and forgets the oldest
+    paths past ALLOW_MEMO_PATHS: the same answers as probing the routes, bounded memory."""
+    monkeypatch.setattr(security, "ALLOW_MEMO_PATHS", 4)
+    app = create_app(config, repo=repo, executor=local_executor, run_drivers=False)
+    edge = security.HttpEdge(app, app=app, settings=config)
+    paths = ["/health", "/jobs", *(f"/jobs/j{i}" for i in range(6)), "/jobs/j0/cancel", "/nope",
+             "/health", "/cmrts/interpolate"]
+    for path in paths:
+        scope = {"type": "http", "path": path, "root_path": "", "method": "GET"}
+        assert edge.allowed(scope) == security.allowed_methods(app, scope), path
+        assert len(edge._allow) <= 4
+    assert edge.allowed({"type": "http", "path": "/jobs/j5", "root_path": "",
+                         "method": "GET"}) == ["GET", "HEAD", "OPTIONS"]
+    assert edge.allowed({"type": "http", "path": "/nope", "root_path": "", "method": "GET"}) == []
