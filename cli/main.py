@@ -272,13 +272,20 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from service.app import create_app
+    from service.security import host_warning
 
     settings, level = _process_settings(args)
+    # the bind address is one of the host names the API answers to (service.security)
+    settings = settings.model_copy(update={"api_host": args.host or settings.api_host,
+                                           "api_port": args.port or settings.api_port})
     try:
         app = create_app(settings)
     except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
         return _die(f"serve: {err}")
-    uvicorn.run(app, host=args.host or settings.api_host, port=args.port or settings.api_port,
+    warning = host_warning(settings)
+    if warning:
+        logging.getLogger("cmrt.service").warning("serve: %s", warning)
+    uvicorn.run(app, host=settings.api_host, port=settings.api_port,
                 log_level=level.lower(), timeout_graceful_shutdown=5)
     return 0
 
