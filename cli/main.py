@@ -1,5 +1,5 @@
 """The `cmrt` command line (console script `cmrt = cli.main:main`): simulate, optimize, bench,
-pca, interpolate, serve, worker; and the client commands submit, jobs, watch, library
+sweep, pca, interpolate, serve, worker; and the client commands submit, jobs, watch, library
 (`cli/remote.py`, talking to a running service).
 
 Domain errors become one clear message on stderr and exit status 2; nothing is written then.
@@ -221,6 +221,45 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- sweep ------------------------------------------------------------------------------------
+def _grid_values(first: float, last: float, step: float, option: str) -> list[float]:
+    """first, first + step, ... up to last (inclusive, within a millionth of a step)."""
+    if not all(math.isfinite(v) for v in (first, last, step)) or step <= 0.0 or last < first:
+        raise ValueError(f"{option}: FIRST LAST STEP needs STEP > 0 and LAST >= FIRST, got "
+                         f"{first:g} {last:g} {step:g}")
+    n = int(math.floor((last - first) / step + 1e-6)) + 1
+    return [round(first + k * step, 9) for k in range(n)]
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from optim.executors import PoolExecutor, SerialExecutor
+    from optim.sweep import PushGrid, run_grid, table
+    from sim import load_spec
+
+    spec = load_spec(args.spec)
+    try:
+        forces = _grid_values(*args.forces, "--forces")
+    except ValueError as err:
+        return _die(str(err))
+    grid = PushGrid(spec, forces, args.durations, args.directions)  # checked before any run
+    executor = SerialExecutor() if args.workers <= 1 else PoolExecutor(args.workers)
+    t0 = time.perf_counter()
+    try:
+        results = run_grid(grid, executor)
+    finally:
+        executor.close()
+    wall = time.perf_counter() - t0
+    if args.json:
+        print(json.dumps({"spec": spec.name, "cells": [r.to_dict() for r in results],
+                          "wall_seconds": wall}))
+    else:
+        print(f"push grid of {spec.name}: {len(results)} clips of {grid.length:g} s, "
+              f"push from {spec.clip.preparation:g} s, {wall:.1f} s on {args.workers} "
+              f"worker{'s' if args.workers > 1 else ''}")
+        print(table(grid, results))
+    return 0
+
+
 # ---- serve / worker ---------------------------------------------------------------------------
 def _process_settings(args: argparse.Namespace) -> tuple[Any, str]:
     """The settings of a long-running process (`serve`, `driver`) with its --workers, and its
@@ -241,13 +280,20 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from service.app import create_app
+    from service.security import host_warning
 
     settings, level = _process_settings(args)
+    # the bind address is one of the host names the API answers to (service.security)
+    settings = settings.model_copy(update={"api_host": args.host or settings.api_host,
+                                           "api_port": args.port or settings.api_port})
     try:
         app = create_app(settings)
     except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
         return _die(f"serve: {err}")
-    uvicorn.run(app, host=args.host or settings.api_host, port=args.port or settings.api_port,
+    warning = host_warning(settings)
+    if warning:
+        logging.getLogger("cmrt.service").warning("serve: %s", warning)
+    uvicorn.run(app, host=settings.api_host, port=settings.api_port,
                 log_level=level.lower(), timeout_graceful_shutdown=5)
     return 0
 
@@ -305,6 +351,14 @@ def cmd_worker(args: argparse.Namespace) -> int:
     if concurrency:
         cmd += ["-c", str(concurrency)]
     cmd += ["-n", args.hostname or "cmrt@%h"]
+    import gc
+
+    import worker.tasks  # noqa: F401 - the simulator and store, imported before the pool forks
+
+    # Keep what is imported shared between the pool processes: without this, the first garbage
+    # collection in each forked process writes to every object's header and so copies the
+    # parent's pages (64 MB of private memory per pool process; 18 MB with it; bench/capacity.py).
+    gc.freeze()
     app.worker_main(cmd)
     return 0
 
@@ -365,6 +419,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rounds of (raw, controller, replay) per world, the rates over all")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
+
+    w = sub.add_parser("sweep", help="a push task's envelope: survived or fell on a grid of "
+                       "forces x durations, forward and backward",
+                       description="Simulate a push spec (no CMRT) at every force x duration x "
+                       "direction of a grid and print which pushes are survived (with the fall "
+                       "time and direction, and the steps a stepping controller took). Each "
+                       "clip keeps the spec's length; the push acts over its task window.")
+    w.add_argument("spec", help="a spec with a push task (its controller is the one measured)")
+    w.add_argument("--forces", type=float, nargs=3, required=True,
+                   metavar=("FIRST", "LAST", "STEP"), help="forces in N, LAST included")
+    w.add_argument("--durations", type=float, nargs="+", required=True, metavar="S",
+                   help="push durations in s")
+    w.add_argument("--directions", nargs="+", choices=("forward", "backward"),
+                   default=["forward", "backward"])
+    w.add_argument("--workers", type=_positive_int, default=1,
+                   help="process pool size (1: in this process)")
+    w.add_argument("--json", action="store_true")
+    w.set_defaults(func=cmd_sweep)
 
     c = sub.add_parser("pca", help="build a PCA basis from a family of results")
     c.add_argument("results", nargs="+")

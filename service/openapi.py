@@ -27,7 +27,8 @@ REF_PREFIX = "#/components/schemas/"
 
 #: What each error code means in this API (the description of its documented response).
 ERRORS: dict[int, str] = {
-    400: "Malformed JSON, or JSON nested deeper than the limit (service.body.MAX_JSON_DEPTH)",
+    400: "A Host header that names no host of this service (service.security), malformed "
+         "JSON, or JSON nested deeper than the limit (service.body.MAX_JSON_DEPTH)",
     401: "Missing or wrong API token (only when CMRT_API_TOKEN is set)",
     403: "A state-changing request from another origin (its Origin is not the service's, or "
          "Sec-Fetch-Site says cross-site or same-site)",
@@ -138,11 +139,12 @@ def _refs(node: Any) -> set[str]:
 
 
 def build_openapi(app: FastAPI, settings: Settings,
-                  always: tuple[int, ...] = (422,)) -> dict[str, Any]:
+                  always: tuple[int, ...] = (400, 422)) -> dict[str, Any]:
     """The exact document of `app` under `settings` (see the module docstring). `always`:
-    error codes every operation can answer (422: a NUL character in the path or query, see
-    service.deps); every operation but the `NO_DATABASE` pages may answer 503 with
-    `Retry-After` when the database is unreachable (service.errors). With an API token, the
+    error codes every operation can answer (400: a Host that is not the service's, see
+    service.security; 422: a NUL character in the path or query, see service.deps); every
+    operation but the `NO_DATABASE` pages may answer 503 with `Retry-After` when the database
+    is unreachable (service.errors). With an API token, the
     operations that need it say so (`security`, 401); state-changing ones answer 403 to
     requests from another origin (service.security)."""
     doc = get_openapi(title=app.title, version=app.version, description=app.description,

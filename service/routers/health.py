@@ -33,7 +33,7 @@ def health(svc: ServicesDep) -> JSONResponse:
     """`{"status": "ok" | "degraded", "database": "ok" | "error", "broker": ...}`: the state
     only; the error behind an "error" goes to the log (it may quote SQL or a URL). Degraded:
     503 with `Retry-After` and a `detail` naming what is unreachable."""
-    checks: dict[str, Any] = {"database": _check("database", lambda: svc.repo.list_jobs(limit=1))}
+    checks: dict[str, Any] = {"database": _check("database", svc.repo.ping)}
     if isinstance(svc.executor, CeleryExecutor):
         checks["broker"] = _check("broker", lambda: svc.executor.ping(timeout=2.0))
     else:

@@ -200,7 +200,7 @@ def test_bench_measures_each_task_world_with_its_props(capsys):
             r["controller_cpu_per_sim_second"] / r["raw_ode_cpu_per_sim_second"])
 
 
-@pytest.mark.parametrize("command", ["simulate", "optimize", "bench", "pca", "interpolate",
+@pytest.mark.parametrize("command", ["simulate", "optimize", "bench", "sweep", "pca", "interpolate",
                                      "serve", "worker", "submit", "jobs", "watch", "library",
                                      "family"])
 def test_every_subcommand_has_help(command, capsys):

@@ -140,6 +140,7 @@ COVERED = {
     ".venv/bin/cmrt pca": "test_cli_block",
     ".venv/bin/cmrt interpolate": "test_cli_block",
     ".venv/bin/cmrt bench": "test_cli_block",
+    ".venv/bin/cmrt sweep": "test_cli_block",
     ".venv/bin/cmrt family run": "test_family_command",
     ".venv/bin/cmrt family submit": "test_client_commands",
     ".venv/bin/cmrt driver": "tests/cli/test_driver_process.py",
@@ -185,7 +186,8 @@ def test_cli_block(scratch):
     d = scratch
     shutil.copy(d / "results" / "bend_0.5.json", d / "RESULT.json")
     lines = [_strip_comment(c) for c in readme_commands() if c.startswith(".venv/bin/cmrt ")]
-    order = ("optimize", "pca", "interpolate", "simulate", "bench")  # outputs feed later ones
+    # outputs feed later ones
+    order = ("optimize", "pca", "interpolate", "simulate", "bench", "sweep")
     lines = sorted((c for c in lines if c.split()[1] in order),
                    key=lambda c: order.index(c.split()[1]))
     ran = []
@@ -199,6 +201,8 @@ def test_cli_block(scratch):
             ran.append(form)
             if " --json" in form:
                 json.loads(p.stdout.strip().splitlines()[-1])
+            elif form.split()[1] == "sweep":  # the table: a row per force, the survived runs
+                assert "forward 0.4 s: survived" in p.stdout, p.stdout
     assert (d / "fast.json").exists() and (d / "bend_basis.json").exists()
     assert (d / "curve.json").exists() and (d / "OUT.csv").read_text().startswith("t,")
     assert any("--resume" in f for f in ran) and any("--extrapolate" in f for f in ran)

@@ -22,6 +22,7 @@ MODULES = (
     "optim.outcome",
     "optim.family",
     "optim.family_run",
+    "optim.sweep",
 )
 
 
