@@ -23,7 +23,7 @@ from fastapi.staticfiles import StaticFiles
 from cmrt.settings import Settings, get_settings
 from service.deps import Services, no_nul
 from service.errors import install_error_handlers
-from service.openapi import install_openapi
+from service.openapi import install_openapi, operation_id
 from service.routers import (
     bases,
     cmrts,
@@ -85,6 +85,7 @@ def create_app(
         dependencies=[Depends(no_nul)],
         docs_url=None,  # service.routers.pages serves /docs from the project's own assets
         redoc_url=None,
+        generate_unique_id_function=operation_id,
     )
     app.state.services = svc
     install_error_handlers(app)

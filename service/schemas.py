@@ -105,6 +105,16 @@ class JobOut(BaseModel):
     spec: dict[str, Any] | None = None
 
 
+class CancelAccepted(BaseModel):
+    """A cancellation asked for (`POST /jobs/{id}/cancel`, `POST /families/{id}/cancel`): the
+    driver stops the work at its next step; `status` is the state when it was asked."""
+
+    id: str
+    status: str
+    cancel_requested: bool
+    url: str
+
+
 class JobPage(BaseModel):
     items: list[JobOut]
     total: int
@@ -222,6 +232,36 @@ class BasisPage(BaseModel):
     offset: int
 
 
+class CmrtClip(BaseModel):
+    """The clip a library CMRT was optimised on, s."""
+
+    preparation: float
+    duration: float
+    decay: float
+    length: float
+
+
+class CmrtSource(BaseModel):
+    """Where a library CMRT came from: its job (null when imported) and the spec it was
+    optimised on (null when stored without it)."""
+
+    job_id: str | None
+    job_url: str | None
+    spec: dict[str, Any] | None
+
+
+class CmrtOut(CmrtSummary):
+    """One library CMRT with its spline and sampled curve."""
+
+    clip: CmrtClip
+    params: list[float]
+    knot_times: list[float]
+    values: list[Any] = Field(description="horizontal knot values, m; [dx, dy] pairs when the "
+                                          "CMRT is vertical too")
+    fell_without: bool | None
+    source: CmrtSource
+
+
 class BasisRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     family: Annotated[str, Field(min_length=1, max_length=100)]
@@ -326,6 +366,94 @@ class RefineAccepted(BaseModel):
 
 
 REFINE_EXAMPLE: dict[str, Any] = {"family": "domino", "parameters": {"mass": 45}}
+
+
+# ---- families (service.routers.families; docs/families.md) ---------------------------------
+class FamilyAccepted(BaseModel):
+    id: str
+    url: str
+    status: str
+    runs: int = Field(description="runs of the family's plan (members, references, reduced "
+                                  "runs, the probes)")
+    budget: JobBudget = Field(description="the whole family's: the sum over its runs")
+
+
+class FamilyLinks(BaseModel):
+    cancel: str
+    dashboard: str
+
+
+class FamilyRun(BaseModel):
+    """One run of a family's plan and the job that runs it (null until it is started)."""
+
+    id: str
+    kind: str
+    value: float | None
+    warm_from: str | None = Field(description="the run whose optimum starts this one (null: "
+                                              "the flat spline)")
+    needs: list[str] = Field(description="runs that must be finished first")
+    job_id: str | None
+    job_url: str | None
+    status: str
+    best_objective: float | None
+    evaluations: int
+    start: str | None = Field(description="where the run's search started (the job's "
+                                          "`start.from`)")
+    curve: list[list[float]] | None = Field(
+        None, description="[evaluations, best so far] per generation; only with curves=true")
+
+
+class FamilyProgress(BaseModel):
+    runs: int
+    done: int
+    running: int
+    queued: int
+    not_started: int
+
+
+class FamilyOut(BaseModel):
+    """A family; `GET /families/{id}` adds its request, runs and progress, and once done the
+    members, the PCA basis and the checks (docs/families.md)."""
+
+    id: str
+    url: str
+    family: str
+    param: str
+    status: str
+    error: str | None
+    cancel_requested: bool
+    created_at: datetime
+    finished_at: datetime | None
+    values: list[float] | None
+    strategy: str | None
+    links: FamilyLinks
+    spec: dict[str, Any] | None = Field(None, description="the family request as stored")
+    runs: list[FamilyRun] | None = None
+    progress: FamilyProgress | None = None
+    members: list[dict[str, Any]] | None = None
+    basis: dict[str, Any] | None = None
+    checks: dict[str, Any] | None = None
+    paper_table2: list[dict[str, Any]] | None = Field(
+        None, description="the paper's Table 2 rows where the task has one")
+
+
+class FamilyPage(BaseModel):
+    items: list[FamilyOut]
+    total: int
+    limit: int
+    offset: int
+
+
+# ---- operations --------------------------------------------------------------------------
+class Health(BaseModel):
+    """`GET /health` (200; a degraded state is a 503 with `detail`)."""
+
+    status: Literal["ok", "degraded"]
+    database: str = Field(description='"ok" or "error"')
+    broker: str = Field(description='"ok", "error", or "none (embedded local process pool)"')
+    executor: str
+    drivers: int = Field(description="jobs and families this process drives now")
+    detail: str | None = Field(None, description="what is unreachable (degraded only)")
 
 
 # ---- what-if simulations ------------------------------------------------------------------

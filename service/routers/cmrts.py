@@ -154,7 +154,7 @@ def interpolate_cmrt(
     return out
 
 
-@router.get("/{cmrt_id}", summary="One CMRT with its curve",
+@router.get("/{cmrt_id}", summary="One CMRT with its curve", response_model=schemas.CmrtOut,
             responses=error_responses(404))
 def get_cmrt(cmrt_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     return cmrt_out(repo.get_cmrt(cmrt_id), request, full=True)
