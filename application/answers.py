@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from application import jobs
+from application.admission import default_popsize
 from application.library import interpolate_library
 from cmrt.canonical import text_hash
 from cmrt.settings import Settings
@@ -52,9 +53,10 @@ SWITCH_DISTANCE = 0.15
 #: objectives interpolated at the value) by more than this fraction is weak: the neighbouring
 #: members are tried there too.
 WEAK_MARGIN = 0.05
-#: A refinement's stopping rules: at most `REFINE_MAX_EVALUATIONS` evaluations (the paper's
-#: use of a basis: a new task instance in a few generations), ending earlier when the best
-#: improved less than `REFINE_IMPROVEMENT` over the last `REFINE_WINDOW` evaluations.
+#: A refinement's stopping rules: at most `REFINE_MAX_EVALUATIONS` evaluations in whole
+#: generations (the paper's use of a basis: a new task instance in a few generations), ending
+#: earlier when the best improved less than `REFINE_IMPROVEMENT` over the last `REFINE_WINDOW`
+#: evaluations.
 REFINE_MAX_EVALUATIONS = 150
 REFINE_WINDOW = 35
 REFINE_IMPROVEMENT = 0.01
@@ -206,9 +208,14 @@ def refine_job(
     spec = _spec_at(_nearer(recs, key, value), key, value, filters)
     cached = _best_cached(repo, spec, answer, recs)
     start_from = cached or answer
+    # Whole generations within the budget: CMA-ES stops between generations, so a cap that is
+    # not a multiple of the population would be passed by up to one generation.
+    k = repo.get_basis(basis_id).k
+    popsize = spec.spec.optimize.popsize or default_popsize(k)
+    cap = min(max_evaluations, spec.spec.optimize.max_evaluations)
+    cap = max(popsize, cap // popsize * popsize)
     typed = spec.spec.model_copy(update={"optimize": spec.spec.optimize.model_copy(update={
-        "threshold": None, "min_evaluations": 0,
-        "max_evaluations": min(max_evaluations, spec.spec.optimize.max_evaluations),
+        "threshold": None, "min_evaluations": 0, "max_evaluations": cap,
         "window": REFINE_WINDOW, "improvement": REFINE_IMPROVEMENT})})
     canonical = parse_canonical(typed.model_dump(mode="json"), "spec")
     spline = CmrtSpline(start_from["length"], np.asarray(start_from["knot_times"]),
