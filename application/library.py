@@ -13,9 +13,9 @@ import numpy as np
 
 from optim.errors import InterpolationError, ParamsError
 from optim.interpolate import bracket, interpolate
-from optim.spline import CmrtSpline, encode, sample_curve
-from sim.spec import TaskSpec
-from store import CmrtKey, CmrtRecord, Repository
+from optim.spline import CmrtSpline, decode, encode, sample_curve
+from sim.spec import TaskSpec, parse_spec
+from store import CmrtEntry, CmrtKey, CmrtRecord, Repository
 
 #: Largest number of library CMRTs read for one interpolation or basis.
 MAX_MEMBERS = 10_000
@@ -61,6 +61,47 @@ class LibraryCmrt:
             duration=float(rec.duration), cmrt=dict(rec.spec.get("cmrt") or {}),
             parameters={k: float(v) for k, v in rec.task_parameters.items()},
         )
+
+
+def library_entry(spec: TaskSpec, params: Any, *, objective: float, fell: bool,
+                  objective_without: float | None = None, fell_without: bool | None = None,
+                  winner: str = "search", job_id: str | None = None,
+                  spec_document: Mapping[str, Any] | None = None) -> CmrtEntry:
+    """The library entry of CMRT `params` optimised for `spec` (its task parameters, decoded
+    spline and sampled curve, the spec it was optimised on)."""
+    spline = decode(spec, params)
+    values: list[Any] = [float(v) for v in spline.values]
+    if spline.vertical_values is not None:
+        values = [[float(a), float(b)]
+                  for a, b in zip(spline.values, spline.vertical_values, strict=True)]
+    return CmrtEntry(
+        family=spec.family_name, character=spec.character.model_dump(mode="json"),
+        task_parameters=spec.task_parameters(), preparation=spec.clip.preparation,
+        duration=spec.clip.duration, decay=spec.clip.decay,
+        params=[float(v) for v in params], knots=[float(v) for v in spline.knot_times],
+        values=values, curve=sample_curve(spline), objective=float(objective),
+        objective_without=objective_without, fell=bool(fell), fell_without=fell_without,
+        winner=winner, job_id=job_id,
+        spec=dict(spec_document) if spec_document is not None
+        else spec.model_dump(mode="json"),
+    )  # fmt: skip
+
+
+def import_family(repo: Repository, report: Mapping[str, Any]) -> list[str]:
+    """Add every member of a family's report (`cmrt family run --out`'s document) to the
+    library, each with the spec it was optimised on; returns their library ids."""
+    request = report["spec"]  # the family's request: its base spec and the varied parameter
+    base = parse_spec(request.get("spec", request), "family spec")
+    key = base.library_key(str(report["param"]))
+    ids = []
+    for m in sorted(report["members"], key=lambda m: m["value"]):
+        spec = parse_spec(base.with_parameter(key, float(m["value"])),
+                          f"member {m['value']:g}")
+        ids.append(repo.add_cmrt(library_entry(
+            spec, m["params"], objective=m["objective"], fell=m["fell"],
+            objective_without=m.get("baseline_objective"),
+            fell_without=m.get("baseline_fell"))))
+    return ids
 
 
 def library_members(repo: Repository, family: str) -> list[LibraryCmrt]:
@@ -193,5 +234,5 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
     return [best[a].id, best[b].id]
 
 
-__all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "LibraryCmrt", "interpolate_library",
-           "library_members", "library_start"]
+__all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "LibraryCmrt", "import_family",
+           "interpolate_library", "library_entry", "library_members", "library_start"]

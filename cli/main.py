@@ -53,7 +53,7 @@ def _sequence_cmrt(spec: Any, base: Path) -> Any:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from optim.result import OptimizationResult
+    from optim.result import load_cmrt
     from sim import load_spec
     from sim.rollout import Rollout
 
@@ -61,9 +61,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     cmrt = None
     source = "none"
     if args.cmrt:
-        res = OptimizationResult.load(args.cmrt)
-        cmrt = res.spline()
+        cmrt = load_cmrt(args.cmrt)
         source = args.cmrt
+        if abs(cmrt.length - spec.clip.length) > 1e-9:  # a CMRT of another clip: say so
+            print(f"note: the CMRT spans {cmrt.length:g} s, the clip {spec.clip.length:g} s",
+                  file=sys.stderr)
     elif not args.zero and spec.task_type == "sequence":
         cmrt = _sequence_cmrt(spec, Path(args.spec).parent)
         source = "superposed" if cmrt is not None else "none"
@@ -185,7 +187,13 @@ def cmd_interpolate(args: argparse.Namespace) -> int:
     from optim.result import OptimizationResult
 
     results = [OptimizationResult.load(p) for p in args.results]
-    interp = interpolate(results, args.at, key=args.param, extrapolate=args.extrapolate)
+    try:  # the library's key (mass) or its spec path (task.mass): one parameter, two names
+        key = results[0].task_spec().library_key(args.param)
+    except ValueError as err:
+        return _die(f"--param: {err}")
+    if key != args.param:
+        print(f"note: --param {args.param} is the library parameter {key!r}", file=sys.stderr)
+    interp = interpolate(results, args.at, key=key, extrapolate=args.extrapolate)
     data = interp.to_dict()
     if args.out:
         Path(args.out).write_text(json.dumps(data, indent=2))
@@ -380,7 +388,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("spec")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--zero", action="store_true", help="no CMRT (the reactive controller alone)")
-    g.add_argument("--cmrt", metavar="RESULT.json", help="replay an optimised CMRT")
+    g.add_argument("--cmrt", metavar="RESULT.json",
+                   help="a CMRT: an optimisation result, an interpolation (`cmrt interpolate "
+                        "--out`) or a library answer (`cmrt library interpolate --out`)")
     s.add_argument("--json", action="store_true")
     s.add_argument("--trace", metavar="OUT.csv", help="write per-step traces")
     s.add_argument("--replay", metavar="OUT.html",
@@ -437,9 +447,12 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("interpolate", help="interpolate a CMRT at a task parameter value")
     i.add_argument("results", nargs="+")
     i.add_argument("--at", type=float, required=True)
-    i.add_argument("--param", default="duration")
+    i.add_argument("--param", default="duration",
+                   help="the task parameter: its library name (mass, duration) or its spec "
+                        "path (task.mass, clip.duration)")
     i.add_argument("--extrapolate", action="store_true")
-    i.add_argument("--out")
+    i.add_argument("--out", help="write the interpolated CMRT; `cmrt simulate SPEC --cmrt "
+                                 "OUT` and `--replay` take it as it is")
     i.add_argument("--json", action="store_true", help="print the sampled curve too")
     i.set_defaults(func=cmd_interpolate)
 

@@ -32,6 +32,7 @@ from service.routers import (
     jobs,
     links,
     pages,
+    refinements,
     replays,
     simulations,
 )
@@ -89,7 +90,8 @@ def create_app(
     app.state.services = svc
     install_error_handlers(app)
     install_openapi(app, settings)
-    for module in (jobs, families, cmrts, bases, simulations, replays, links, health, pages):
+    for module in (jobs, families, cmrts, refinements, bases, simulations, replays, links, health,
+                   pages):
         app.include_router(module.router)
     static = resources.files("service").joinpath("static")
     app.mount("/static", StaticFiles(directory=str(static)), name="static")

@@ -88,7 +88,8 @@ async def no_nul(request: Request) -> None:
 
 
 #: Query keys of /cmrts and /cmrts/interpolate that are not task parameters.
-RESERVED_QUERY_KEYS = {"family", "tolerance", "limit", "offset", "extrapolate", "along", "curves"}
+RESERVED_QUERY_KEYS = {"family", "tolerance", "limit", "offset", "extrapolate", "along", "curves",
+                       "verify"}
 #: Most task parameters accepted in one library query.
 MAX_QUERY_PARAMS = 16
 #: Longest name of a task parameter in a library query.
@@ -132,11 +133,11 @@ def task_parameters_doc(required: bool) -> dict[str, Any]:
         "name": "task_parameters", "in": "query", "required": required,
         "style": "form", "explode": True,
         "description": "Any other query key is a task parameter with a finite number, e.g. "
-                       "`duration=0.4`, `force=250`.",
+                       "`duration=0.4`, `mass=60` (or its spec path, `task.mass=60`).",
         "schema": {"type": "object", "minProperties": 1 if required else 0,
                    "maxProperties": MAX_QUERY_PARAMS,
                    "propertyNames": {"minLength": 1, "maxLength": MAX_PARAM_NAME,
-                                     "pattern": "^[A-Za-z_][A-Za-z0-9_]*$",
+                                     "pattern": "^[A-Za-z_][A-Za-z0-9_.]*$",
                                      "not": {"enum": sorted(RESERVED_QUERY_KEYS)}},
                    "additionalProperties": {"type": "number"}},
     }]}

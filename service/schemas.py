@@ -268,6 +268,106 @@ class BasisRequest(BaseModel):
     k: Annotated[int, Field(ge=1, le=16)] = 3
 
 
+# ---- the library's answers ----------------------------------------------------------------
+class AnswerOutcome(BaseModel):
+    """A served CMRT simulated at the query's value (kept in the library: `cached` when this
+    query did not simulate it)."""
+
+    status: str
+    objective: float | None = None
+    fell: bool | None = None
+    fall_direction: str | None = None
+    task_success: bool | None = None
+    cpu_seconds: float | None = None
+    error: str | None = None
+    spec_hash: str
+    cached: bool
+
+
+class AnswerTry(BaseModel):
+    """One CMRT the library simulated for an answer."""
+
+    source: str
+    members: list[str]
+    outcome: AnswerOutcome
+
+
+class AnswerSwitch(BaseModel):
+    """The library's check of the two neighbours: detected when their spline parameters lie
+    further apart (RMS, box units) than the threshold."""
+
+    detected: bool
+    distance: float
+    threshold: float
+    knot_shift: float
+    between: list[dict[str, Any]]
+
+
+class AnswerNeighbour(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    id: str
+    objective: float
+    task_parameters: dict[str, float]
+    url: str | None = None
+
+
+class LibraryAnswer(BaseModel):
+    """What the library serves at a task parameter, and what it is."""
+
+    family: str
+    key: str
+    value: float
+    note: str | None = None
+    source: Literal["member", "interpolated", "refined"]
+    members: list[str]
+    neighbours: list[AnswerNeighbour]
+    weight: float
+    exact: bool
+    extrapolated: bool
+    switch: AnswerSwitch | None
+    predicted_objective: float
+    verified: bool
+    verdict: Literal["unverified", "good", "weak", "falls", "fails_task", "failed"]
+    outcome: AnswerOutcome | None
+    tried: list[AnswerTry]
+    message: str
+    refine: dict[str, Any] | None = None
+    length: float
+    knot_times: list[float]
+    values: list[float]
+    vertical_values: list[float] | None
+    curve: dict[str, list[float]]
+
+
+class RefineRequest(BaseModel):
+    """A refinement at a task parameter: `parameters` names the value (one key, or several
+    with `along`), searched in the family's newest PCA basis (or `basis`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    family: Annotated[str, Field(min_length=1, max_length=100)]
+    parameters: Annotated[dict[Annotated[str, Field(min_length=1, max_length=64)],
+                               Annotated[float, Field(allow_inf_nan=False)]],
+                          Field(min_length=1, max_length=16)]
+    along: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    basis: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    max_evaluations: Annotated[int, Field(ge=1, le=1000)] = 150
+    seed: Annotated[int, Field(ge=0, lt=2**31)] = 0
+    extrapolate: bool = False
+
+
+class RefineAccepted(BaseModel):
+    id: str
+    url: str
+    status: str
+    budget: JobBudget
+    basis_id: str
+    start: dict[str, Any]
+    answer: LibraryAnswer
+
+
+REFINE_EXAMPLE: dict[str, Any] = {"family": "domino", "parameters": {"mass": 45}}
+
+
 # ---- families (service.routers.families; docs/families.md) ---------------------------------
 class FamilyAccepted(BaseModel):
     id: str

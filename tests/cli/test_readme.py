@@ -361,7 +361,7 @@ def test_client_commands(scratch, tmp_path):
              or c.split()[:3] in ([".venv/bin/cmrt", "family", w]
                                   for w in ("submit", "show", "watch"))]
     assert [c.split()[1] for c in lines] == ["submit", "jobs", "watch", "library", "library",
-                                             "family", "family", "family"]
+                                             "library", "library", "family", "family", "family"]
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
     env = _env(CMRT_API_PORT=str(port), CMRT_DATA_DIR=str(tmp_path / "data"), CMRT_WORKERS="1")
@@ -392,10 +392,16 @@ def test_client_commands(scratch, tmp_path):
         assert f"job {job} stopped" in watched
         listed = next(v for k, v in out.items() if k.endswith("duration=0.3"))
         assert "duration=0.3" in listed and "duration=0.7" not in listed
-        interp = next(v for k, v in out.items() if k.endswith("duration=0.5"))
-        lo, hi = sorted(n["task_parameters"]["duration"]
-                        for n in json.loads(interp)["neighbours"])
+        interp = json.loads(next(v for k, v in out.items() if k.endswith("duration=0.5 --json")))
+        lo, hi = sorted(n["task_parameters"]["duration"] for n in interp["neighbours"])
         assert lo < 0.5 < hi  # 0.4 (fast_bend) or 0.3, and 0.7
+        assert interp["source"] in ("interpolated", "member") and interp["members"]
+        verified = next(v for k, v in out.items() if k.endswith("duration=0.5 --verify"))
+        assert "simulated" in verified and "verdict" in verified
+        assert json.loads((scratch / "answer.json").read_text())["knot_times"]
+        refined = next(v for k, v in out.items() if k.split()[1:3] == ["library", "refine"]
+                       and k.endswith("--wait"))
+        assert "refinement job" in refined and "library CMRT " in refined
         grown = next(v for k, v in out.items() if k.split()[1:3] == ["family", "submit"])
         assert f"family {family} done" in grown and "| duration |" in grown
         shown = json.loads(next(v for k, v in out.items() if k.endswith(f"{family} --json")))
