@@ -14,8 +14,9 @@ The rules, in order:
   * **verify**: the served CMRT is simulated on the spec at the query's value. An answer that
     falls, fails its task or is weak (its objective more than `WEAK_MARGIN` above the library's
     own prediction, the neighbours' objectives interpolated) is not served as good: the
-    neighbouring members are simulated there too and the best that stands is served; when none
-    stands the answer says so plainly and offers a refinement;
+    neighbouring members are simulated there too (and, across a switch, their average: tried,
+    never served unsimulated) and the best that stands is served; when none stands the answer
+    says so plainly and offers a refinement;
   * **refine** (`refine_job`): an optimisation in the family's PCA basis started at the best
     answer, under a small budget; its result joins the library as a member of the family.
 
@@ -34,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from application import jobs
+from application.admission import default_popsize
 from application.library import interpolate_library
 from cmrt.canonical import text_hash
 from cmrt.settings import Settings
@@ -52,9 +54,10 @@ SWITCH_DISTANCE = 0.15
 #: objectives interpolated at the value) by more than this fraction is weak: the neighbouring
 #: members are tried there too.
 WEAK_MARGIN = 0.05
-#: A refinement's stopping rules: at most `REFINE_MAX_EVALUATIONS` evaluations (the paper's
-#: use of a basis: a new task instance in a few generations), ending earlier when the best
-#: improved less than `REFINE_IMPROVEMENT` over the last `REFINE_WINDOW` evaluations.
+#: A refinement's stopping rules: at most `REFINE_MAX_EVALUATIONS` evaluations in whole
+#: generations (the paper's use of a basis: a new task instance in a few generations), ending
+#: earlier when the best improved less than `REFINE_IMPROVEMENT` over the last `REFINE_WINDOW`
+#: evaluations.
 REFINE_MAX_EVALUATIONS = 150
 REFINE_WINDOW = 35
 REFINE_IMPROVEMENT = 0.01
@@ -119,10 +122,7 @@ def serve(
                                extrapolate=extrapolate)
     recs = [repo.get_cmrt(n["id"]) for n in base["neighbours"]]
     switch = _switch(recs, key) if not base["exact"] and len(recs) == 2 else None
-    interp = CmrtSpline(base["length"], np.asarray(base["knot_times"]),
-                        np.asarray(base["values"]),
-                        None if base["vertical_values"] is None
-                        else np.asarray(base["vertical_values"]))
+    interp = _answer_spline(base)
     near = _nearer(recs, key, value)
     if base["exact"]:
         primary = _Candidate(_member_source(repo, recs[0]), [recs[0]], _spline_of(recs[0]))
@@ -139,6 +139,8 @@ def serve(
         why = (f"interpolated between the members at {key} = "
                + " and ".join(f"{r.task_parameters[key]:g}" for r in recs))
     out = {k: v for k, v in base.items() if k != "curve"}
+    out["interpolation"] = {k: base[k] for k in ("length", "knot_times", "values",
+                                                 "vertical_values")}
     out.update(
         predicted_objective=_predicted(base, recs),
         switch=switch,
@@ -155,11 +157,17 @@ def serve(
     cands = [primary]
     tried = [_verify(repo, family, spec, primary, simulate)]
     if not _good(tried[0], out["predicted_objective"]):
-        for rec in sorted(recs, key=lambda r: abs(r.task_parameters[key] - value)):
-            if primary.source != "interpolated" and primary.ids == [rec.id]:
+        # the neighbours as they are; across a switch also their average, which is never
+        # served unsimulated there but may, simulated, be the best the library has
+        others = [_Candidate("member", [r], _spline_of(r))
+                  for r in sorted(recs, key=lambda r: abs(r.task_parameters[key] - value))]
+        if primary.source != "interpolated" and not base["exact"] and len(recs) == 2:
+            others.append(_Candidate("interpolated", recs, interp))
+        for c in others:
+            if c.source == primary.source and c.ids == primary.ids:
                 continue
-            cands.append(_Candidate("member", [rec], _spline_of(rec)))
-            tried.append(_verify(repo, family, spec, cands[-1], simulate))
+            cands.append(c)
+            tried.append(_verify(repo, family, spec, c, simulate))
     i = min(range(len(tried)), key=lambda j: _rank(tried[j]))
     best = tried[i]
     _set_candidate(out, cands[i])
@@ -204,23 +212,28 @@ def refine_job(
             raise AnswerError(f"basis: no basis {basis_id!r}") from None
     recs = [repo.get_cmrt(n["id"]) for n in answer["neighbours"]]
     spec = _spec_at(_nearer(recs, key, value), key, value, filters)
-    cached = _best_cached(repo, spec, answer, recs)
-    start_from = cached or answer
+    served = _Candidate(answer["source"], [r for r in recs if r.id in answer["members"]],
+                        _answer_spline(answer))
+    cands = [served] + [_Candidate("member", [r], _spline_of(r)) for r in recs]
+    if not answer["exact"] and len(recs) == 2:
+        cands.append(_Candidate("interpolated", recs, _answer_spline(answer["interpolation"])))
+    start_from = _best_cached(repo, spec, cands) or served
+    # Whole generations within the budget: CMA-ES stops between generations, so a cap that is
+    # not a multiple of the population would be passed by up to one generation.
+    k = repo.get_basis(basis_id).k
+    popsize = spec.spec.optimize.popsize or default_popsize(k)
+    cap = min(max_evaluations, spec.spec.optimize.max_evaluations)
+    cap = max(popsize, cap // popsize * popsize)
     typed = spec.spec.model_copy(update={"optimize": spec.spec.optimize.model_copy(update={
-        "threshold": None, "min_evaluations": 0,
-        "max_evaluations": min(max_evaluations, spec.spec.optimize.max_evaluations),
+        "threshold": None, "min_evaluations": 0, "max_evaluations": cap,
         "window": REFINE_WINDOW, "improvement": REFINE_IMPROVEMENT})})
     canonical = parse_canonical(typed.model_dump(mode="json"), "spec")
-    spline = CmrtSpline(start_from["length"], np.asarray(start_from["knot_times"]),
-                        np.asarray(start_from["values"]),
-                        None if start_from["vertical_values"] is None
-                        else np.asarray(start_from["vertical_values"]))
-    x0 = [float(v) for v in encode(canonical.spec, spline)]
+    x0 = [float(v) for v in encode(canonical.spec, start_from.spline)]
     start = {
         "kind": "refine",
         "from": (f"refinement in basis {basis_id} at {key} = {value:g}, started at the "
-                 f"{start_from['source']} answer of " + ", ".join(start_from["members"])),
-        "x0": x0, "sigma0": REFINE_SIGMA0, "cmrts": list(start_from["members"]),
+                 f"{start_from.source} answer of " + ", ".join(start_from.ids)),
+        "x0": x0, "sigma0": REFINE_SIGMA0, "cmrts": start_from.ids,
     }
     job, budget = jobs.submit_job(repo, settings, canonical, seed=seed, basis_id=basis_id,
                                   start=start)
@@ -236,6 +249,14 @@ def _spline_of(rec: CmrtRecord) -> CmrtSpline:
     return CmrtSpline(rec.preparation + rec.duration + rec.decay,
                       np.asarray(rec.knots, dtype=float), np.asarray(values, dtype=float),
                       vertical)
+
+
+def _answer_spline(d: Mapping[str, Any]) -> CmrtSpline:
+    """The spline of an answer's curve fields."""
+    return CmrtSpline(d["length"], np.asarray(d["knot_times"], dtype=float),
+                      np.asarray(d["values"], dtype=float),
+                      None if d["vertical_values"] is None
+                      else np.asarray(d["vertical_values"], dtype=float))
 
 
 def _set_candidate(out: dict[str, Any], c: _Candidate) -> None:
@@ -349,32 +370,18 @@ def _verdict(t: dict[str, Any], predicted: float) -> str:
     return "good" if _good(t, predicted) else "weak"
 
 
-def _best_cached(repo: Repository, spec: CanonicalSpec, answer: dict[str, Any],
-                 recs: list[CmrtRecord]) -> dict[str, Any] | None:
-    """The best standing answer the library kept at `spec` among the interpolation and the
-    neighbours as they are (a refinement starts there), None when none is kept."""
-    cands = [("interpolated" if not answer["exact"] else answer["source"],
-              [r.id for r in recs] if not answer["exact"] else answer["members"], answer)]
-    for r in recs:
-        s = _spline_of(r)
-        cands.append(("member", [r.id], {
-            "length": float(s.length), "knot_times": [float(v) for v in s.knot_times],
-            "values": [float(v) for v in s.values],
-            "vertical_values": None if s.vertical_values is None
-            else [float(v) for v in s.vertical_values]}))
-    best: tuple[float, dict[str, Any]] | None = None
-    for source, ids, curve in cands:
-        spline = CmrtSpline(curve["length"], np.asarray(curve["knot_times"]),
-                            np.asarray(curve["values"]),
-                            None if curve["vertical_values"] is None
-                            else np.asarray(curve["vertical_values"]))
-        params = [float(v) for v in encode(spec.spec, spline)]
+def _best_cached(repo: Repository, spec: CanonicalSpec,
+                 cands: list[_Candidate]) -> _Candidate | None:
+    """The best standing candidate the library kept an outcome of at `spec` (a refinement
+    starts there), None when none is kept."""
+    best: tuple[float, _Candidate] | None = None
+    for c in cands:
+        params = [float(v) for v in encode(spec.spec, c.spline)]
         rec = repo.get_verification(spec.hash, _params_hash(params))
         if rec is None or not _stands({"outcome": rec.outcome}):
             continue
         if best is None or rec.outcome["objective"] < best[0]:
-            best = (float(rec.outcome["objective"]),
-                    {**curve, "source": source, "members": list(ids)})
+            best = (float(rec.outcome["objective"]), c)
     return None if best is None else best[1]
 
 
@@ -387,8 +394,9 @@ def _message(why: str, out: dict[str, Any], best: dict[str, Any], tried: list[di
                 + ("" if o.get("task_success") is None else " and does its task")
                 + f", objective {o['objective']:.4g}")
         if best is not tried[0]:
-            head += (f" (the first answer {_what_went_wrong(tried[0])}: the member at "
-                     f"{out['members'][0]} is served instead)")
+            head += (f" (the first answer {_what_went_wrong(tried[0])}: the "
+                     f"{best['source']} answer of {', '.join(best['members'])} is served "
+                     "instead, simulated)")
         return head
     if verdict == "weak":
         return (f"{why}; the best the library holds at {key} = {value:g} stands, objective "

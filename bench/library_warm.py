@@ -2,7 +2,7 @@
 cold, at values a family left out.
 
     .venv/bin/python bench/library_warm.py results/families/domino.json [--at 30 60 90 110 150]
-        [--workers 2] [--json]
+        [--workers 2] [--sigma 0.05] [--json]
 
 The family is a `cmrt family run` report (its `.runs` folder beside it holds every run). At each
 value of --at (default: the family's leave-out values), the start a new job there gets from
@@ -73,6 +73,9 @@ def main() -> int:
                                    "used when present)")
     ap.add_argument("--at", type=float, nargs="+", help="values (default: the leave-out ones)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--sigma", type=float, default=LIBRARY_WARM_SIGMA0,
+                    help=f"the warm start's CMA-ES step (default {LIBRARY_WARM_SIGMA0}, the "
+                         "library start's)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     path = Path(args.family)
@@ -101,7 +104,7 @@ def main() -> int:
                 x0, start = np.asarray(others[near].params, dtype=float), f"member {near:g}"
             spec = member_spec(fs, v)
             warm_spec = spec.model_copy(update={"optimize": spec.optimize.model_copy(
-                update={"sigma0": LIBRARY_WARM_SIGMA0})})
+                update={"sigma0": args.sigma})})
             t0 = time.perf_counter()
             warm = optimize(warm_spec, pool, seed=fs.seed, x0=x0, cut=False)
             rows.append({

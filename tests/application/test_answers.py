@@ -126,3 +126,14 @@ def test_every_task_parameter_can_be_set(task_doc, key, value, path):
         node = node[p]
     assert node == abs(value)
     assert spec.library_key(".".join(path)) == key
+
+
+def test_across_a_switch_the_average_is_served_only_simulated(repo):
+    sim = Counting()
+    a = answers.serve(repo, "bend", "duration", 0.58, simulate=sim)
+    assert a["switch"]["detected"] and a["verified"]
+    sources = [t["source"] for t in a["tried"]]
+    assert sources[0] == "member"  # the nearer member first, never the blind average
+    if a["verdict"] != "good" or len(sources) > 1:
+        assert sources == ["member", "member", "interpolated"]
+    assert a["source"] in sources and sim.calls == len(sources)

@@ -65,7 +65,9 @@ def test_refine_grows_the_family(client, library, repo):
     while client.get(job["url"]).json()["status"] not in TERMINAL_STATUSES:
         assert time.monotonic() < deadline
         time.sleep(0.1)
-    assert client.get(job["url"]).json()["status"] == "stopped"  # by its stopping rules
+    done = client.get(job["url"]).json()
+    assert done["status"] == "stopped"  # by its stopping rules
+    assert done["evaluations"] <= 30  # whole generations within the budget
     found = client.get("/cmrts", params={"family": "bend", "duration": 0.45}).json()
     assert found["total"] == 1
     a = client.get("/cmrts/interpolate", params={"family": "bend", "duration": 0.45}).json()
