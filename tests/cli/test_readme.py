@@ -182,6 +182,20 @@ def test_make_targets_resolve(scratch):
                 assert target == "test" or "cmrt optimize" in p.stdout
 
 
+def _family_members(d: Path, pattern: str) -> None:
+    """The result files `pattern` names (the README's `pca` and `interpolate` lines read the
+    members `cmrt family run` saved), made by the README's family command as shown (its first
+    form) when there are none yet."""
+    if list(d.glob(pattern)):
+        return
+    family = next(_strip_comment(c) for c in readme_commands()
+                  if c.startswith(".venv/bin/cmrt family run"))
+    out = d / re.search(r"--out (\S+)", family).group(1)
+    shutil.rmtree(out.with_suffix(".runs"), ignore_errors=True)
+    _run(_expand_optional(family)[0], d)
+    assert len(list(d.glob(pattern))) >= 3, sorted(p.name for p in d.rglob("*.json"))
+
+
 def test_cli_block(scratch):
     d = scratch
     shutil.copy(d / "results" / "bend_0.5.json", d / "RESULT.json")
@@ -191,10 +205,14 @@ def test_cli_block(scratch):
     lines = sorted((c for c in lines if c.split()[1] in order),
                    key=lambda c: order.index(c.split()[1]))
     ran = []
+    pca = next(c for c in lines if c.split()[1] == "pca")
     for line in lines:
+        if line.split()[1] in ("pca", "interpolate"):  # the family run's members, as shown
+            _family_members(d, line.split()[2])
         for form in _expand_optional(line):
             if "--basis BASIS.json" in form and not (d / "BASIS.json").exists():
-                _run(".venv/bin/cmrt pca results/bend_*.json --k 3 --out BASIS.json", d)
+                _family_members(d, pca.split()[2])
+                _run(pca.replace("--out bend_basis.json", "--out BASIS.json"), d)
             if "--warm-start R.json" in form:
                 shutil.copy(d / "fast.json", d / "R.json")
             p = _run(form, d)
