@@ -228,6 +228,22 @@ def test_database_connections_dropped_mid_job(api, topology):
     assert api.get("/health").json()["database"] == "ok"
 
 
+def test_the_api_answers_the_compose_names_and_refuses_a_rebound_host(api):
+    """The api service as docker-compose.yml configures it (CMRT_ALLOWED_HOSTS=api): the
+    name other containers use and loopback are answered; a page whose DNS name was rebound to
+    the API's address is refused before any route runs, reads and writes alike."""
+    for host in ("api:8000", "127.0.0.1:8000", "localhost"):
+        assert api.get("/jobs", headers={"host": host}).status_code == 200, host
+    rebound = {"host": "evil.example:8000", "origin": "http://evil.example:8000",
+               "sec-fetch-site": "same-origin"}
+    total = api.get("/jobs").json()["total"]
+    for r in (api.get("/jobs", headers=rebound),
+              api.post("/jobs", json={"spec": bend("it_rebound")}, headers=rebound),
+              api.post("/bases", json={"family": "it_bend", "k": 1}, headers=rebound)):
+        assert r.status_code == 400 and r.json()["detail"].startswith("host: "), r.text
+    assert api.get("/jobs").json()["total"] == total
+
+
 def test_bad_input_gets_4xx_and_stores_nothing(api):
     before = api.get("/jobs").json()["total"]
     good = bend("it_bad")
