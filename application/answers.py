@@ -36,7 +36,7 @@ import numpy as np
 
 from application import jobs
 from application.admission import default_popsize
-from application.library import SWITCH_DISTANCE, interpolate_library, params_distance
+from application.library import SWITCH_DISTANCE, neighbours_answer, params_distance
 from cmrt.canonical import text_hash
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
@@ -113,9 +113,8 @@ def serve(
     """The library's answer at `key` = `value` (module docstring); simulated and checked
     when `simulate` is given. InterpolationError when the library cannot interpolate there
     (range, family, parameter); AnswerError for a spec the value makes invalid."""
-    base = interpolate_library(repo, family, key, value, filters=filters,
-                               extrapolate=extrapolate)
-    recs = [repo.get_cmrt(n["id"]) for n in base["neighbours"]]
+    base, recs = neighbours_answer(repo, family, key, value, filters=filters,
+                                   extrapolate=extrapolate)
     switch = _switch(recs, key) if not base["exact"] and len(recs) == 2 else None
     interp = _answer_spline(base)
     near = _nearer(recs, key, value)
