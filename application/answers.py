@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import json
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -299,17 +301,36 @@ def _predicted(base: dict[str, Any], recs: list[CmrtRecord]) -> float:
     return float((1.0 - w) * recs[0].objective + w * recs[1].objective)
 
 
+#: Query specs this process has built (library entries never change, so a member's id, the
+#: parameter and the value name one spec): a kept answer is served without parsing a spec.
+_SPECS_AT: OrderedDict[tuple[Any, ...], CanonicalSpec] = OrderedDict()
+#: How many query specs are kept (a few kB each).
+SPECS_AT_CACHED = 1024
+_SPECS_AT_LOCK = threading.Lock()
+
+
 def _spec_at(rec: CmrtRecord, key: str, value: float,
              filters: Mapping[str, float] | None) -> CanonicalSpec:
     """The spec of the query: member `rec`'s spec with `key` (and the filters) set."""
+    cache_key = (rec.id, key, float(value), tuple(sorted((filters or {}).items())))
+    with _SPECS_AT_LOCK:  # the service answers on several threads
+        got = _SPECS_AT.get(cache_key)
+        if got is not None:
+            _SPECS_AT.move_to_end(cache_key)
+            return got
     spec: TaskSpec = parse_spec(rec.spec, f"library CMRT {rec.id}")
     doc = spec.with_parameter(key, value)
     for name, v in (filters or {}).items():
         doc = parse_spec(doc).with_parameter(name, v)
     try:
-        return parse_canonical(doc, "spec")
+        got = parse_canonical(doc, "spec")
     except SpecError as err:
         raise AnswerError(f"{key}: {value:g} makes the task invalid: {err}") from None
+    with _SPECS_AT_LOCK:
+        _SPECS_AT[cache_key] = got
+        if len(_SPECS_AT) > SPECS_AT_CACHED:
+            _SPECS_AT.popitem(last=False)
+    return got
 
 
 def _params_hash(params: list[float]) -> str:
