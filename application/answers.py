@@ -36,7 +36,7 @@ import numpy as np
 
 from application import jobs
 from application.admission import default_popsize
-from application.library import interpolate_library
+from application.library import SWITCH_DISTANCE, interpolate_library, params_distance
 from cmrt.canonical import text_hash
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
@@ -45,11 +45,6 @@ from sim.errors import SpecError
 from sim.spec import CanonicalSpec, TaskSpec, parse_canonical, parse_spec
 from store import CmrtRecord, JobRecord, NotFound, Repository
 
-#: RMS distance (spline parameters, box units in [0, 1]) between two neighbouring members above
-#: which they are taken for two strategies and not averaged. Members of one strategy lie
-#: 0.02-0.13 apart in the stored families (sumo box, bend speed, the domino's chains, the lion's
-#: tire at 28-32 kg); the switches found there lie 0.21-0.35 apart (docs/families.md).
-SWITCH_DISTANCE = 0.15
 #: A verified answer whose objective exceeds the library's prediction (the neighbours'
 #: objectives interpolated at the value) by more than this fraction is weak: the neighbouring
 #: members are tried there too.
@@ -285,8 +280,7 @@ def _member_source(repo: Repository, rec: CmrtRecord) -> str:
 def _switch(recs: list[CmrtRecord], key: str) -> dict[str, Any]:
     """The library's own check of two neighbours: the RMS distance of their spline parameters
     and the largest change of a knot time (s)."""
-    a, b = (np.asarray(r.params, dtype=float) for r in recs)
-    distance = float(np.sqrt(np.mean((a - b) ** 2))) if a.shape == b.shape else math.inf
+    distance = params_distance(recs[0], recs[1])
     shift = max((abs(x - y) for x, y in zip(recs[0].knots, recs[1].knots, strict=False)),
                 default=0.0)
     return {"detected": bool(distance > SWITCH_DISTANCE), "distance": distance,

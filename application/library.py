@@ -5,6 +5,7 @@ record without parsing its spec."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,6 +20,18 @@ from store import CmrtEntry, CmrtKey, CmrtRecord, Repository
 
 #: Largest number of library CMRTs read for one interpolation or basis.
 MAX_MEMBERS = 10_000
+
+#: RMS distance (spline parameters, box units in [0, 1]) between two neighbouring members above
+#: which they are taken for two strategies and not averaged. Members of one strategy lie
+#: 0.02-0.13 apart in the stored families (sumo box, bend speed, the domino's chains, the lion's
+#: tire at 28-32 kg); the switches found there lie 0.21-0.35 apart (docs/families.md).
+SWITCH_DISTANCE = 0.15
+
+
+def params_distance(a: CmrtRecord, b: CmrtRecord) -> float:
+    """RMS distance of two library CMRTs' spline parameters (box units); inf for two layouts."""
+    x, y = np.asarray(a.params, dtype=float), np.asarray(b.params, dtype=float)
+    return float(np.sqrt(np.mean((x - y) ** 2))) if x.shape == y.shape else math.inf
 
 
 @dataclass(frozen=True)
@@ -41,6 +54,12 @@ class LibraryCmrt:
     @property
     def dimension(self) -> int:
         return len(self.params)
+
+    def spline(self) -> CmrtSpline:
+        """The decoded spline."""
+        return CmrtSpline(self.length, np.asarray(self.knot_times), np.asarray(self.values),
+                          None if self.vertical_values is None
+                          else np.asarray(self.vertical_values))
 
     def task_parameters(self) -> dict[str, float]:
         return dict(self.parameters)
@@ -195,14 +214,25 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
         spline = CmrtSpline(out["length"], np.asarray(out["knot_times"]),
                             np.asarray(out["values"]),
                             None if vy is None else np.asarray(vy))
-        try:
-            x0 = encode(spec, spline)
-        except ParamsError:  # another spline layout: not a start for this spec
-            continue
         ids = [n["id"] for n in out["neighbours"]]
         what = (f"library CMRT {ids[0]} ({key} = {params[key]:g})" if out["exact"] else
                 f"library: interpolated along {key} between " + " and ".join(
                     f"{n[key]:g}" for n in out["neighbours"]) + f" (weight {out['weight']:.3f})")
+        if not out["exact"] and len(ids) == 2:  # across a strategy switch: never the average
+            a, b = (repo.get_cmrt(i) for i in ids)
+            distance = params_distance(a, b)
+            if distance > SWITCH_DISTANCE:
+                near = min((a, b), key=lambda r: (abs(r.task_parameters[key] - params[key]),
+                                                  r.objective))
+                spline = LibraryCmrt.of(near).spline()
+                ids = [near.id]
+                what = (f"library CMRT {near.id} ({key} = {near.task_parameters[key]:g}), the "
+                        f"nearer neighbour: a strategy switch lies between the neighbours "
+                        f"(parameters {distance:.2f} apart)")
+        try:
+            x0 = encode(spec, spline)
+        except ParamsError:  # another spline layout: not a start for this spec
+            continue
         return {"from": what, "x0": [float(v) for v in x0], "sigma0": LIBRARY_WARM_SIGMA0,
                 "cmrts": ids}
     return None
@@ -234,5 +264,6 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
     return [best[a].id, best[b].id]
 
 
-__all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "LibraryCmrt", "import_family",
-           "interpolate_library", "library_entry", "library_members", "library_start"]
+__all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "SWITCH_DISTANCE", "LibraryCmrt",
+           "import_family", "interpolate_library", "library_entry", "library_members",
+           "library_start", "params_distance"]

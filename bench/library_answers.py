@@ -125,7 +125,7 @@ def main() -> int:
             repo = _library(Path(tmp), reports, key, leave)
             settings = Settings(data_dir=Path(tmp), database_url=f"sqlite:///{tmp}/library.db",
                                 workers=args.workers)
-            with TestClient(create_app(settings, repo=repo)) as client:
+            with TestClient(create_app(settings, repo=repo), base_url="http://127.0.0.1") as client:
                 row = _answer(client, family, key, value, cold.get(value) if leave else None,
                               args.k, args.refine_always)
             repo.engine.dispose()

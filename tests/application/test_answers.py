@@ -137,3 +137,19 @@ def test_across_a_switch_the_average_is_served_only_simulated(repo):
     if a["verdict"] != "good" or len(sources) > 1:
         assert sources == ["member", "member", "interpolated"]
     assert a["source"] in sources and sim.calls == len(sources)
+
+
+def test_a_job_never_starts_from_an_average_across_a_switch(repo):
+    from application.library import library_start
+
+    within = library_start(repo, _spec(0.45))
+    assert within["from"].startswith("library: interpolated along duration between 0.4 and 0.5")
+    assert len(within["cmrts"]) == 2
+    across = library_start(repo, _spec(0.58))
+    near = next(k.id for k in repo.cmrt_keys("bend") if k.task_parameters["duration"] == 0.5)
+    assert across["cmrts"] == [near] and "strategy switch" in across["from"]
+    from application.library import LibraryCmrt
+    from optim.spline import encode
+
+    member = LibraryCmrt.of(repo.get_cmrt(near)).spline()  # the member itself, for this clip
+    assert across["x0"] == pytest.approx(encode(_spec(0.58), member))
