@@ -4,6 +4,8 @@ cache (`optim.objective.SPECS`), so that a process parses a job's spec at most o
 
 from __future__ import annotations
 
+from typing import Any
+
 from application import admission
 from application.bases import job_basis
 from application.library import library_start
@@ -19,7 +21,7 @@ START_CHOICES = ("library", "cold")
 
 
 def submit_job(repo: Repository, settings: Settings, spec: CanonicalSpec, *, seed: int = 0,
-               basis_id: str | None = None, start: str = "library"
+               basis_id: str | None = None, start: str | dict[str, Any] = "library"
                ) -> tuple[JobRecord, admission.Budget]:
     """Admit and store a new job of `spec` (canonicalised where it entered): the basis it
     names must fit the spec (`bases.UnusableBasisError`), its budget stay under the server's
@@ -29,7 +31,10 @@ def submit_job(repo: Repository, settings: Settings, spec: CanonicalSpec, *, see
     typed = SPECS.put(spec).spec
     k = None if basis_id is None else job_basis(repo, basis_id, typed).k
     budget = admission.check(typed, settings, dimension=k)
-    warm = library_start(repo, typed) if start == "library" and basis_id is None else None
+    if isinstance(start, dict):
+        warm: dict[str, Any] | None = start
+    else:
+        warm = library_start(repo, typed) if start == "library" and basis_id is None else None
     job = repo.create_job(spec.document, spec_hash=spec.hash, name=typed.name,
                           family=typed.family_name, task=typed.task_type, seed=seed,
                           basis_id=basis_id, start=warm)

@@ -5,6 +5,7 @@ record without parsing its spec."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -13,12 +14,24 @@ import numpy as np
 
 from optim.errors import InterpolationError, ParamsError
 from optim.interpolate import bracket, interpolate
-from optim.spline import CmrtSpline, encode, sample_curve
-from sim.spec import TaskSpec
-from store import CmrtKey, CmrtRecord, Repository
+from optim.spline import CmrtSpline, decode, encode, sample_curve
+from sim.spec import TaskSpec, parse_spec
+from store import CmrtEntry, CmrtKey, CmrtRecord, Repository
 
 #: Largest number of library CMRTs read for one interpolation or basis.
 MAX_MEMBERS = 10_000
+
+#: RMS distance (spline parameters, box units in [0, 1]) between two neighbouring members above
+#: which they are taken for two strategies and not averaged. Members of one strategy lie
+#: 0.02-0.13 apart in the stored families (sumo box, bend speed, the domino's chains, the lion's
+#: tire at 28-32 kg); the switches found there lie 0.21-0.35 apart (docs/families.md).
+SWITCH_DISTANCE = 0.15
+
+
+def params_distance(a: CmrtRecord, b: CmrtRecord) -> float:
+    """RMS distance of two library CMRTs' spline parameters (box units); inf for two layouts."""
+    x, y = np.asarray(a.params, dtype=float), np.asarray(b.params, dtype=float)
+    return float(np.sqrt(np.mean((x - y) ** 2))) if x.shape == y.shape else math.inf
 
 
 @dataclass(frozen=True)
@@ -42,6 +55,12 @@ class LibraryCmrt:
     def dimension(self) -> int:
         return len(self.params)
 
+    def spline(self) -> CmrtSpline:
+        """The decoded spline."""
+        return CmrtSpline(self.length, np.asarray(self.knot_times), np.asarray(self.values),
+                          None if self.vertical_values is None
+                          else np.asarray(self.vertical_values))
+
     def task_parameters(self) -> dict[str, float]:
         return dict(self.parameters)
 
@@ -61,6 +80,47 @@ class LibraryCmrt:
             duration=float(rec.duration), cmrt=dict(rec.spec.get("cmrt") or {}),
             parameters={k: float(v) for k, v in rec.task_parameters.items()},
         )
+
+
+def library_entry(spec: TaskSpec, params: Any, *, objective: float, fell: bool,
+                  objective_without: float | None = None, fell_without: bool | None = None,
+                  winner: str = "search", job_id: str | None = None,
+                  spec_document: Mapping[str, Any] | None = None) -> CmrtEntry:
+    """The library entry of CMRT `params` optimised for `spec` (its task parameters, decoded
+    spline and sampled curve, the spec it was optimised on)."""
+    spline = decode(spec, params)
+    values: list[Any] = [float(v) for v in spline.values]
+    if spline.vertical_values is not None:
+        values = [[float(a), float(b)]
+                  for a, b in zip(spline.values, spline.vertical_values, strict=True)]
+    return CmrtEntry(
+        family=spec.family_name, character=spec.character.model_dump(mode="json"),
+        task_parameters=spec.task_parameters(), preparation=spec.clip.preparation,
+        duration=spec.clip.duration, decay=spec.clip.decay,
+        params=[float(v) for v in params], knots=[float(v) for v in spline.knot_times],
+        values=values, curve=sample_curve(spline), objective=float(objective),
+        objective_without=objective_without, fell=bool(fell), fell_without=fell_without,
+        winner=winner, job_id=job_id,
+        spec=dict(spec_document) if spec_document is not None
+        else spec.model_dump(mode="json"),
+    )  # fmt: skip
+
+
+def import_family(repo: Repository, report: Mapping[str, Any]) -> list[str]:
+    """Add every member of a family's report (`cmrt family run --out`'s document) to the
+    library, each with the spec it was optimised on; returns their library ids."""
+    request = report["spec"]  # the family's request: its base spec and the varied parameter
+    base = parse_spec(request.get("spec", request), "family spec")
+    key = base.library_key(str(report["param"]))
+    ids = []
+    for m in sorted(report["members"], key=lambda m: m["value"]):
+        spec = parse_spec(base.with_parameter(key, float(m["value"])),
+                          f"member {m['value']:g}")
+        ids.append(repo.add_cmrt(library_entry(
+            spec, m["params"], objective=m["objective"], fell=m["fell"],
+            objective_without=m.get("baseline_objective"),
+            fell_without=m.get("baseline_fell"))))
+    return ids
 
 
 def library_members(repo: Repository, family: str) -> list[LibraryCmrt]:
@@ -154,14 +214,25 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
         spline = CmrtSpline(out["length"], np.asarray(out["knot_times"]),
                             np.asarray(out["values"]),
                             None if vy is None else np.asarray(vy))
-        try:
-            x0 = encode(spec, spline)
-        except ParamsError:  # another spline layout: not a start for this spec
-            continue
         ids = [n["id"] for n in out["neighbours"]]
         what = (f"library CMRT {ids[0]} ({key} = {params[key]:g})" if out["exact"] else
                 f"library: interpolated along {key} between " + " and ".join(
                     f"{n[key]:g}" for n in out["neighbours"]) + f" (weight {out['weight']:.3f})")
+        if not out["exact"] and len(ids) == 2:  # across a strategy switch: never the average
+            a, b = (repo.get_cmrt(i) for i in ids)
+            distance = params_distance(a, b)
+            if distance > SWITCH_DISTANCE:
+                near = min((a, b), key=lambda r: (abs(r.task_parameters[key] - params[key]),
+                                                  r.objective))
+                spline = LibraryCmrt.of(near).spline()
+                ids = [near.id]
+                what = (f"library CMRT {near.id} ({key} = {near.task_parameters[key]:g}), the "
+                        f"nearer neighbour: a strategy switch lies between the neighbours "
+                        f"(parameters {distance:.2f} apart)")
+        try:
+            x0 = encode(spec, spline)
+        except ParamsError:  # another spline layout: not a start for this spec
+            continue
         return {"from": what, "x0": [float(v) for v in x0], "sigma0": LIBRARY_WARM_SIGMA0,
                 "cmrts": ids}
     return None
@@ -193,5 +264,6 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
     return [best[a].id, best[b].id]
 
 
-__all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "LibraryCmrt", "interpolate_library",
-           "library_members", "library_start"]
+__all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "SWITCH_DISTANCE", "LibraryCmrt",
+           "import_family", "interpolate_library", "library_entry", "library_members",
+           "library_start", "params_distance"]

@@ -1,7 +1,8 @@
 """The CMRT library at scale: query latency with 10,000 CMRTs in 200 families.
 
     .venv/bin/python bench/library_scale.py [--backend sqlite postgresql] [--families 200]
-        [--per-family 50] [--requests 400] [--pages 3] [--json]
+        [--per-family 50] [--requests 400] [--pages 3] [--client http.client httpx]
+        [--cmrt EXE [EXE ...]] [--rounds 1] [--json]
 
 For each backend, a fresh database is filled through the store (`Repository.add_cmrt`, one
 entry per call as the job driver adds them): `--families` families of `--per-family` domino
@@ -13,7 +14,12 @@ families and masses:
   * `GET /cmrts/interpolate?family=F&mass=M` (the interpolated CMRT between the two nearest),
   * `GET /cmrts/families` (the library's families and their sizes, the library page's list),
   * `GET /health` (a database ping: the floor the HTTP stack and the client set),
-and reports each one's p50 / p99 / max in ms; then the library page
+and reports each one's p50 / p99 / max in ms, for each `--client`: `http.client` (the standard
+library's, one kept-alive connection: a few hundredths of a ms of its own per request, so the
+figures are the server's and the loopback's) and `httpx` (what `cmrt.client` uses: about 1 ms
+of its own per request on this machine, which is in its figures). `--cmrt A B` serves the same
+database with each executable in turn (another checkout's `.venv/bin/cmrt`: before and after
+a change in one run), `--rounds` times alternating; then the library page
 (`/dashboard/library?family=F`) in Debian's Chromium, `--pages` loads: ms from navigation
 start until the page says it has drawn (table, overlay, interpolation and bases shown).
 PostgreSQL: the machine's server (CMRT_BENCH_PG, default postgresql+psycopg://postgres@
@@ -24,6 +30,7 @@ No assertions: figures go to docs/benchmarks.md with the machine's load.
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import os
 import random
@@ -35,6 +42,7 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlencode
 
 import httpx
 import numpy as np
@@ -100,14 +108,14 @@ def _stats(ms: list[float]) -> dict[str, float]:
             "max": float(a.max()), "n": len(ms)}
 
 
-def _serve(url: str, data: Path) -> tuple[subprocess.Popen, str]:
+def _serve(url: str, data: Path, cmrt: Path = CMRT) -> tuple[subprocess.Popen, str]:
     port = _port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
     env.update(CMRT_DATA_DIR=str(data), CMRT_DATABASE_URL=url, CMRT_WORKERS="1",
                CMRT_LOG_LEVEL="WARNING")
     with open(data / "serve.log", "w") as log:  # the child keeps its own descriptor
         proc = subprocess.Popen(
-            [str(CMRT), "serve", "--host", "127.0.0.1", "--port", str(port)], env=env,
+            [str(cmrt), "serve", "--host", "127.0.0.1", "--port", str(port)], env=env,
             stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
     base = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 60
@@ -120,10 +128,43 @@ def _serve(url: str, data: Path) -> tuple[subprocess.Popen, str]:
     raise RuntimeError(f"cmrt serve did not start; see {data / 'serve.log'}")
 
 
-def _requests(base: str, families: int, n: int, seed: int) -> dict[str, Any]:
+class _StdlibClient:
+    """GET over one kept-alive `http.client` connection (the least client cost in Python)."""
+
+    def __init__(self, base: str) -> None:
+        host, _, port = base.removeprefix("http://").partition(":")
+        self.conn = http.client.HTTPConnection(host, int(port), timeout=30)
+
+    def get(self, path: str, params: dict[str, Any]) -> tuple[int, bytes]:
+        self.conn.request("GET", f"{path}?{urlencode(params)}" if params else path)
+        r = self.conn.getresponse()
+        return r.status, r.read()
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+class _HttpxClient:
+    def __init__(self, base: str) -> None:
+        self.c = httpx.Client(base_url=base, timeout=30)
+
+    def get(self, path: str, params: dict[str, Any]) -> tuple[int, bytes]:
+        r = self.c.get(path, params=params)
+        return r.status_code, r.content
+
+    def close(self) -> None:
+        self.c.close()
+
+
+CLIENTS = {"http.client": _StdlibClient, "httpx": _HttpxClient}
+
+
+def _requests(base: str, families: int, n: int, seed: int,
+              client: str = "httpx") -> dict[str, Any]:
     rng = random.Random(seed)
     out: dict[str, list[float]] = {"find": [], "interpolate": [], "families": [], "health": []}
-    with httpx.Client(base_url=base, timeout=30) as c:
+    c = CLIENTS[client](base)
+    try:
         for i in range(n + 20):  # the first 20 warm the server up and are not counted
             fam = f"domino_{rng.randrange(families):03d}"
             mass = round(rng.uniform(MASS_LO, MASS_HI), 2)
@@ -134,13 +175,15 @@ def _requests(base: str, families: int, n: int, seed: int) -> dict[str, Any]:
                 ("health", "/health", {}),  # the HTTP stack's floor, a database ping
             ):
                 t0 = time.perf_counter()
-                r = c.get(path, params=q)
+                status, body = c.get(path, q)
                 dt = (time.perf_counter() - t0) * 1000
-                if r.status_code != 200:
-                    raise RuntimeError(f"{path} {q}: {r.status_code} {r.text[:200]}")
+                if status != 200:
+                    raise RuntimeError(f"{path} {q}: {status} {body[:200]!r}")
                 if i >= 20:
                     out[name].append(dt)
-    return {k: _stats(v) for k, v in out.items()}
+    finally:
+        c.close()
+    return out
 
 
 def _pages(base: str, families: int, loads: int) -> list[float]:
@@ -160,6 +203,19 @@ def _pages(base: str, families: int, loads: int) -> list[float]:
             ctx.close()
         browser.close()
     return drawn
+
+
+def _label(exe: Path) -> str:
+    """`checkout@commit` of a `cmrt` executable (`<checkout>/.venv/bin/cmrt`)."""
+    root = Path(exe).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"],
+                                capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "-uno"],
+                               capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return root.name
+    return f"{root.name}@{commit}{'+' if dirty else ''}"
 
 
 def _pg_url(name: str) -> str:
@@ -182,9 +238,23 @@ def run_backend(backend: str, args: argparse.Namespace, entries: list[CmrtEntry]
     proc = None
     try:
         fill_s = _fill(url, entries)
-        proc, base = _serve(url, data)
-        lat = _requests(base, args.families, args.requests, args.seed)
-        pages = _pages(base, args.families, args.pages) if args.pages else []
+        samples: dict[tuple[str, str], dict[str, list[float]]] = {}
+        pages: list[float] = []
+        for rnd in range(args.rounds):
+            for exe in args.cmrt:
+                proc, base = _serve(url, data, exe)
+                for client in args.client:
+                    got = _requests(base, args.families, args.requests, args.seed + rnd, client)
+                    into = samples.setdefault((_label(exe), client), {})
+                    for k, v in got.items():
+                        into.setdefault(k, []).extend(v)
+                if args.pages and rnd == 0 and exe == args.cmrt[-1]:
+                    pages = _pages(base, args.families, args.pages)
+                os.killpg(proc.pid, signal.SIGTERM)
+                proc.wait(timeout=30)
+                proc = None
+        lat = [{"server": srv, "client": cl, **{k: _stats(v) for k, v in by.items()}}
+               for (srv, cl), by in samples.items()]
         return {"backend": backend, "cmrts": len(entries), "fill_seconds": fill_s,
                 "latency_ms": lat, "page_drawn_ms": pages}
     finally:
@@ -207,6 +277,11 @@ def main() -> None:
     ap.add_argument("--requests", type=int, default=400)
     ap.add_argument("--pages", type=int, default=3)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--client", nargs="+", default=list(CLIENTS), choices=list(CLIENTS))
+    ap.add_argument("--cmrt", nargs="+", type=Path, default=[CMRT],
+                    help="cmrt executables to serve with, in turn (default: this checkout's)")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="times each executable serves, alternating (samples pooled)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     entries = _entries(args.families, args.per_family, args.seed)
@@ -217,16 +292,18 @@ def main() -> None:
         print(json.dumps({"load": load, "results": results}, indent=1))
         return
     print(f"{len(entries)} CMRTs in {args.families} families; load average {load}")
-    print("| backend | fill (s) | request | p50 ms | p99 ms | max ms |")
-    print("|---|---|---|---|---|---|")
+    print("| backend | server | client | request | p50 ms | p99 ms | max ms |")
+    print("|---|---|---|---|---|---|---|")
     for r in results:
-        for name, s in r["latency_ms"].items():
-            print(f"| {r['backend']} | {r['fill_seconds']:.0f} | {name} | {s['p50']:.1f} | "
-                  f"{s['p99']:.1f} | {s['max']:.1f} |")
+        for row in r["latency_ms"]:
+            for name in ("find", "interpolate", "families", "health"):
+                s = row[name]
+                print(f"| {r['backend']} | {row['server']} | {row['client']} | {name} | "
+                      f"{s['p50']:.2f} | {s['p99']:.2f} | {s['max']:.1f} |")
         if r["page_drawn_ms"]:
             ms = ", ".join(f"{v:.0f}" for v in r["page_drawn_ms"])
-            print(f"| {r['backend']} | | library page drawn (ms) | {ms} | | |")
-
+            print(f"| {r['backend']} | | | library page drawn (ms) | {ms} | | |")
+        print(f"({r['backend']}: filled in {r['fill_seconds']:.0f} s)")
 
 if __name__ == "__main__":
     main()

@@ -2,14 +2,16 @@
 cold, at values a family left out.
 
     .venv/bin/python bench/library_warm.py results/families/domino.json [--at 30 60 90 110 150]
-        [--workers 2] [--json]
+        [--workers 2] [--sigma 0.05] [--json]
 
-The family is a `cmrt family run` report (its `.runs` folder beside it holds every run). At each
-value of --at (default: the family's leave-out values), the start a new job there gets from
-the library (`POST /jobs` with `start: "library"`, application.library.library_start): the CMRT
-interpolated between the neighbouring members, the member at that value left out (at an end of
-the range, the nearest member's optimum), searched with CMA-ES step LIBRARY_WARM_SIGMA0 in the
-full space, under the family's main rules and seed. It is compared with the family's cold
+The family is a `cmrt family run` report. At each value of --at (default: the family's
+leave-out values), the library holds the family's members but the one at that value
+(application.library.import_family), and the job starts where `POST /jobs` with `start:
+"library"` starts it (application.library.library_start): the CMRT interpolated between the
+neighbouring members, or across a strategy switch the nearer member; at an end of the range
+no start (the flat spline, as a cold job). It is searched with the start's CMA-ES step
+(LIBRARY_WARM_SIGMA0; --sigma to compare others) in the full space, under the family's main
+rules and seed. It is compared with the family's cold
 full-space run at that value (the flat spline, the same rules and seed): evaluations until
 each first reached the cold run's final objective, until each was within 1 % of its own final
 best, and the final objectives.
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,21 +29,18 @@ from typing import Any
 
 import numpy as np
 
-from application.library import LIBRARY_WARM_SIGMA0
+from application.library import LIBRARY_WARM_SIGMA0, import_family, library_start
 from optim.executors import PoolExecutor
 from optim.family import (
     converged_at,
     evaluations_to_reach,
-    family_members,
-    interpolated_params,
     member_spec,
     parse_family,
     plan_runs,
     reference_run_id,
 )
-from optim.family_run import load_finished
-from optim.result import OptimizationResult
 from optim.run import optimize
+from store import open_repository
 
 
 @dataclass
@@ -52,37 +52,28 @@ class _Run:
     history: list[dict[str, float]]
 
 
-def _from_report(fs: Any, report: dict[str, Any]) -> tuple[dict[float, Any], dict[str, _Run]]:
-    """The members (as results, for the interpolation) and every run's convergence curve, from
-    a family report alone."""
-    members = {}
-    for m in report["members"]:
-        spec = member_spec(fs, m["value"])
-        members[float(m["value"])] = OptimizationResult.build(
-            spec, m["params"], objective=m["objective"],
-            baseline_objective=m["baseline_objective"])
-    colds = {r["id"]: _Run(r["objective"], r["evaluations"],
-                           [{"evaluations": e, "best_so_far": b} for e, b in r["curve"]])
-             for r in report["runs"]}
-    return members, colds
+def _colds(report: dict[str, Any]) -> dict[str, _Run]:
+    """Every run's objective, evaluations and convergence curve, from a family report."""
+    return {r["id"]: _Run(r["objective"], r["evaluations"],
+                          [{"evaluations": e, "best_so_far": b} for e, b in r["curve"]])
+            for r in report["runs"]}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("family", help="a `cmrt family run` report (F.json; F.runs beside it is "
-                                   "used when present)")
+    ap.add_argument("family", help="a `cmrt family run` report")
     ap.add_argument("--at", type=float, nargs="+", help="values (default: the leave-out ones)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--sigma", type=float,
+                    help=f"the warm start's CMA-ES step (default: the library start's, "
+                         f"{LIBRARY_WARM_SIGMA0})")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     path = Path(args.family)
     report = json.loads(path.read_text())
     fs = parse_family(report["spec"])
     runs = plan_runs(fs)
-    members, colds = _from_report(fs, report)
-    if path.with_suffix(".runs").is_dir():  # the runs themselves, when they are kept
-        results, _ = load_finished(path.with_suffix(".runs"), runs)
-        members = {v: res for v, (_, res) in family_members(runs, results).items()}
+    colds = _colds(report)
     rows = []
     with PoolExecutor(args.workers) as pool:
         for v in args.at or fs.leave_out:
@@ -91,17 +82,19 @@ def main() -> int:
             if cold is None:
                 print(f"{v:g}: no cold run in the family; skipped")
                 continue
-            others = {u: r for u, r in members.items() if u != v}
-            got = interpolated_params(fs, members, v)  # from the members other than v
-            if got is not None:
-                x0, lo, hi = got
-                start = f"interpolated {lo:g}-{hi:g}"
-            else:
-                near = min(others, key=lambda u: (abs(u - v), u))
-                x0, start = np.asarray(others[near].params, dtype=float), f"member {near:g}"
             spec = member_spec(fs, v)
+            with tempfile.TemporaryDirectory() as tmp:  # the library without the member at v
+                repo = open_repository(f"sqlite:///{tmp}/library.db")
+                import_family(repo, {**report, "members": [
+                    m for m in report["members"] if abs(m["value"] - v) > 1e-9]})
+                got = library_start(repo, spec)  # what POST /jobs starts this job from
+                repo.engine.dispose()
+            x0 = None if got is None else np.asarray(got["x0"], dtype=float)
+            start = "cold (no library start)" if got is None else got["from"]
+            sigma = args.sigma if args.sigma is not None else (
+                spec.optimize.sigma0 if got is None else got["sigma0"])
             warm_spec = spec.model_copy(update={"optimize": spec.optimize.model_copy(
-                update={"sigma0": LIBRARY_WARM_SIGMA0})})
+                update={"sigma0": sigma})})
             t0 = time.perf_counter()
             warm = optimize(warm_spec, pool, seed=fs.seed, x0=x0, cut=False)
             rows.append({

@@ -94,7 +94,7 @@ def _cpu_seconds() -> float:
 
 
 def cmd_family_run(args: argparse.Namespace) -> int:
-    from cli.main import _die
+    from cmrt.cmdline import die
     from optim._io import atomic_write_text
     from optim.executors import PoolExecutor
     from optim.family import family_report, format_tables, parse_family
@@ -103,9 +103,9 @@ def cmd_family_run(args: argparse.Namespace) -> int:
     try:
         request = family_request(args)
     except _BadInputError as err:
-        return _die(str(err))
+        return die(str(err))
     if args.workers < 1:
-        return _die("--workers: must be at least 1")
+        return die("--workers: must be at least 1")
     fs = parse_family(request)  # FamilyError (exit 2) before anything is written
     out = Path(args.out)
     state_dir = out.with_suffix(".runs")
@@ -182,13 +182,13 @@ def _guarded(fn: Any) -> Any:
 
 
 def cmd_family_submit(args: argparse.Namespace) -> int:
-    from cli.main import _die
     from cli.remote import _client
+    from cmrt.cmdline import die
 
     try:
         request = family_request(args)
     except _BadInputError as err:
-        return _die(str(err))
+        return die(str(err))
 
     @_guarded
     def go(args: argparse.Namespace) -> int:

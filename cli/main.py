@@ -8,7 +8,6 @@ Domain errors become one clear message on stderr and exit status 2; nothing is w
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 import math
@@ -16,17 +15,16 @@ import signal
 import sys
 import threading
 import time
-import warnings
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-EXIT_BAD_INPUT = 2
-
-
-def _die(msg: str) -> int:
-    print(f"cmrt: error: {msg}", file=sys.stderr)
-    return EXIT_BAD_INPUT
+from cmrt.cmdline import (
+    die,
+    positive_int,
+    process_settings,
+    quiet_plotting_warning,
+    terminate_like_interrupt,
+)
 
 
 def _fmt(v: Any) -> str:
@@ -53,7 +51,7 @@ def _sequence_cmrt(spec: Any, base: Path) -> Any:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from optim.result import OptimizationResult
+    from optim.result import load_cmrt
     from sim import load_spec
     from sim.rollout import Rollout
 
@@ -61,17 +59,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     cmrt = None
     source = "none"
     if args.cmrt:
-        res = OptimizationResult.load(args.cmrt)
-        cmrt = res.spline()
+        cmrt = load_cmrt(args.cmrt)
         source = args.cmrt
+        if abs(cmrt.length - spec.clip.length) > 1e-9:  # a CMRT of another clip: say so
+            print(f"note: the CMRT spans {cmrt.length:g} s, the clip {spec.clip.length:g} s",
+                  file=sys.stderr)
     elif not args.zero and spec.task_type == "sequence":
         cmrt = _sequence_cmrt(spec, Path(args.spec).parent)
         source = "superposed" if cmrt is not None else "none"
     if args.compare and not args.replay:
-        return _die("--compare: needs --replay OUT.html")
+        return die("--compare: needs --replay OUT.html")
     if args.compare and cmrt is None:
-        return _die("--compare: needs a CMRT (--cmrt RESULT.json) to compare with the flat "
-                    "spline")
+        return die("--compare: needs a CMRT (--cmrt RESULT.json) to compare with the flat "
+                   "spline")
     record = bool(args.trace or args.replay)
     sim = Rollout(spec)
     t0 = time.perf_counter()
@@ -185,7 +185,13 @@ def cmd_interpolate(args: argparse.Namespace) -> int:
     from optim.result import OptimizationResult
 
     results = [OptimizationResult.load(p) for p in args.results]
-    interp = interpolate(results, args.at, key=args.param, extrapolate=args.extrapolate)
+    try:  # the library's key (mass) or its spec path (task.mass): one parameter, two names
+        key = results[0].task_spec().library_key(args.param)
+    except ValueError as err:
+        return die(f"--param: {err}")
+    if key != args.param:
+        print(f"note: --param {args.param} is the library parameter {key!r}", file=sys.stderr)
+    interp = interpolate(results, args.at, key=key, extrapolate=args.extrapolate)
     data = interp.to_dict()
     if args.out:
         Path(args.out).write_text(json.dumps(data, indent=2))
@@ -232,7 +238,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         forces = _grid_values(*args.forces, "--forces")
     except ValueError as err:
-        return _die(str(err))
+        return die(str(err))
     grid = PushGrid(spec, forces, args.durations, args.directions)  # checked before any run
     executor = SerialExecutor() if args.workers <= 1 else PoolExecutor(args.workers)
     t0 = time.perf_counter()
@@ -253,52 +259,20 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 # ---- serve / worker ---------------------------------------------------------------------------
-def _process_settings(args: argparse.Namespace) -> tuple[Any, str]:
-    """The settings of a long-running process (`serve`, `driver`) with its --workers, and its
-    log level, logging set up on stderr."""
-    from cmrt.settings import get_settings
-
-    settings = get_settings()
-    if args.workers is not None:
-        settings = settings.model_copy(update={"workers": args.workers})
-    level = (args.log_level or settings.log_level).upper()
-    logging.basicConfig(level=level, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return settings, level
-
-
-def cmd_serve(args: argparse.Namespace) -> int:
-    """The HTTP API with its job drivers under uvicorn (embedded default without a broker)."""
-    import uvicorn
-
-    from service.app import create_app
-
-    settings, level = _process_settings(args)
-    try:
-        app = create_app(settings)
-    except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
-        return _die(f"serve: {err}")
-    uvicorn.run(app, host=args.host or settings.api_host, port=args.port or settings.api_port,
-                log_level=level.lower(), timeout_graceful_shutdown=5)
-    return 0
-
-
 def cmd_driver(args: argparse.Namespace) -> int:
     """Job and family drivers in a process of their own (no HTTP): the scanner takes every
     job and family without a live driver, as the API's drivers do, until SIGTERM / SIGINT."""
-    import signal
-    import threading
 
     from store import open_repository
     from worker.executors import make_generation_executor
     from worker.runner import JobRunner
 
-    settings, level = _process_settings(args)
+    settings, level = process_settings(args)
     try:
         repo = open_repository(settings.database_url)
         executor = make_generation_executor(settings)
     except Exception as err:  # noqa: BLE001 - settings or database unusable: one clear line
-        return _die(f"driver: {err}")
+        return die(f"driver: {err}")
     runner = JobRunner(repo, executor, settings)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
@@ -313,51 +287,10 @@ def cmd_driver(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_worker(args: argparse.Namespace) -> int:
-    """A Celery worker evaluating candidates (needs CMRT_BROKER_URL)."""
-    from cmrt.settings import get_settings
-
-    settings = get_settings()
-    if not settings.broker_url:
-        return _die("worker: no broker configured (set CMRT_BROKER_URL, e.g. "
-                    "redis://localhost:6379/0); without a broker `cmrt serve` evaluates in its "
-                    "own local process pool")
-    from worker.celery_app import app
-
-    if args.ping:
-        import socket
-
-        name = args.hostname or f"cmrt@{socket.gethostname()}"
-        replies = app.control.ping(destination=[name], timeout=5.0)
-        return 0 if replies else 1
-    cmd = ["worker", "-Q", settings.queue, "-l", (args.loglevel or settings.log_level).upper(),
-           "--without-gossip", "--without-mingle", "-P", "prefork"]
-    concurrency = args.concurrency or settings.worker_concurrency
-    if concurrency:
-        cmd += ["-c", str(concurrency)]
-    cmd += ["-n", args.hostname or "cmrt@%h"]
-    app.worker_main(cmd)
-    return 0
-
-
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
-    return n
-
-
-def _port(text: str) -> int:
-    n = _positive_int(text)
-    if n > 65535:
-        raise argparse.ArgumentTypeError(f"must be a port in 1..65535, got {n}")
-    return n
-
-
 def build_parser() -> argparse.ArgumentParser:
+    from service import command as serve_command
+    from worker import command as worker_command
+
     p = argparse.ArgumentParser(prog="cmrt", description="Anticipatory balance: CMRT service")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -365,7 +298,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("spec")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--zero", action="store_true", help="no CMRT (the reactive controller alone)")
-    g.add_argument("--cmrt", metavar="RESULT.json", help="replay an optimised CMRT")
+    g.add_argument("--cmrt", metavar="RESULT.json",
+                   help="a CMRT: an optimisation result, an interpolation (`cmrt interpolate "
+                        "--out`) or a library answer (`cmrt library interpolate --out`)")
     s.add_argument("--json", action="store_true")
     s.add_argument("--trace", metavar="OUT.csv", help="write per-step traces")
     s.add_argument("--replay", metavar="OUT.html",
@@ -390,7 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("specs", nargs="*", metavar="SPEC",
                    help="also measure these task specs' worlds (props included) and clips")
     b.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per case")
-    b.add_argument("--repeat", type=_positive_int, default=1,
+    b.add_argument("--repeat", type=positive_int, default=1,
                    help="rounds of (raw, controller, replay) per world, the rates over all")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_bench)
@@ -408,7 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="push durations in s")
     w.add_argument("--directions", nargs="+", choices=("forward", "backward"),
                    default=["forward", "backward"])
-    w.add_argument("--workers", type=_positive_int, default=1,
+    w.add_argument("--workers", type=positive_int, default=1,
                    help="process pool size (1: in this process)")
     w.add_argument("--json", action="store_true")
     w.set_defaults(func=cmd_sweep)
@@ -422,43 +357,33 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("interpolate", help="interpolate a CMRT at a task parameter value")
     i.add_argument("results", nargs="+")
     i.add_argument("--at", type=float, required=True)
-    i.add_argument("--param", default="duration")
+    i.add_argument("--param", default="duration",
+                   help="the task parameter: its library name (mass, duration) or its spec "
+                        "path (task.mass, clip.duration)")
     i.add_argument("--extrapolate", action="store_true")
-    i.add_argument("--out")
+    i.add_argument("--out", help="write the interpolated CMRT; `cmrt simulate SPEC --cmrt "
+                                 "OUT` and `--replay` take it as it is")
     i.add_argument("--json", action="store_true", help="print the sampled curve too")
     i.set_defaults(func=cmd_interpolate)
 
-    v = sub.add_parser("serve", help="run the HTTP API (embedded default: SQLite + local pool)",
-                       description="Serve the CMRT HTTP API and its job drivers. Without "
-                       "CMRT_BROKER_URL it runs the embedded default (SQLite file, evaluations "
-                       "in a local process pool), with no other server.")
-    v.add_argument("--host", help="bind address (default CMRT_API_HOST, 127.0.0.1)")
-    v.add_argument("--port", type=_port, help="port (default CMRT_API_PORT, 8000)")
-    v.add_argument("--workers", type=_positive_int,
-                   help="local pool processes in embedded mode (default CMRT_WORKERS)")
-    v.add_argument("--log-level", help="uvicorn log level (default CMRT_LOG_LEVEL, info)")
-    v.set_defaults(func=cmd_serve)
+    v = sub.add_parser("serve", help=serve_command.HELP, description=serve_command.DESCRIPTION)
+    serve_command.add_arguments(v)
+    v.set_defaults(func=serve_command.run)
 
     d = sub.add_parser("driver", help="drive jobs and families in a process of their own",
                        description="Run the job and family drivers without the HTTP API: "
                        "every job or family without a live driver is taken and driven (a "
                        "lease admits one driver per job). Run the API with "
                        "CMRT_API_DRIVERS=false to scale or restart it without stopping jobs.")
-    d.add_argument("--workers", type=_positive_int,
+    d.add_argument("--workers", type=positive_int,
                    help="local pool processes in embedded mode (default CMRT_WORKERS)")
     d.add_argument("--log-level", help="log level (default CMRT_LOG_LEVEL, info)")
     d.set_defaults(func=cmd_driver)
 
-    w = sub.add_parser("worker", help="run a Celery evaluation worker (needs CMRT_BROKER_URL)",
-                       description="Start a Celery worker evaluating CMRT candidates from the "
-                       "queue CMRT_QUEUE (needs CMRT_BROKER_URL).")
-    w.add_argument("--concurrency", "-c", type=_positive_int,
-                   help="worker processes (default CMRT_WORKER_CONCURRENCY, else the CPUs)")
-    w.add_argument("--loglevel", "-l", help="log level (default CMRT_LOG_LEVEL, INFO)")
-    w.add_argument("--hostname", "-n", help="node name (default cmrt@<host>)")
-    w.add_argument("--ping", action="store_true",
-                   help="health check: exit 0 if a worker on this host answers a ping")
-    w.set_defaults(func=cmd_worker)
+    w = sub.add_parser("worker", help=worker_command.HELP,
+                       description=worker_command.DESCRIPTION)
+    worker_command.add_arguments(w)
+    w.set_defaults(func=worker_command.run)
 
     from cli.family import add_parsers as add_family_parsers
     from cli.remote import add_parsers
@@ -468,39 +393,19 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-@contextlib.contextmanager
-def _terminate_like_interrupt() -> Iterator[None]:
-    """While a command runs, SIGTERM (`kill`, `docker stop`) unwinds like Ctrl-C, so `finally`
-    blocks close the process pool and the store instead of leaving them to the OS. Servers
-    that install their own handler (uvicorn, Celery) replace this one while they run."""
-    if threading.current_thread() is not threading.main_thread():
-        yield  # signal handlers can only be set from the main thread
-        return
-
-    def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def main(argv: list[str] | None = None) -> int:
-    # pycma warns on import when matplotlib is absent; plotting is not part of this tool.
-    warnings.filterwarnings("ignore", message="Could not import matplotlib")
+    quiet_plotting_warning()
     from optim.errors import OptimError
     from sim.errors import SimError
 
     args = build_parser().parse_args(argv)
     try:
-        with _terminate_like_interrupt():
+        with terminate_like_interrupt():
             return int(args.func(args) or 0)
     except (SimError, OptimError) as err:
-        return _die(str(err))
+        return die(str(err))
     except FileNotFoundError as err:
-        return _die(f"{err.filename}: no such file")
+        return die(f"{err.filename}: no such file")
     except KeyboardInterrupt:
         note = {"optimize": "; the checkpoint holds every finished generation (--resume "
                             "continues)",

@@ -16,6 +16,7 @@ import math
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 EXIT_JOB_FAILED = 1
@@ -198,14 +199,64 @@ def cmd_library(args: argparse.Namespace) -> int:
                 print(f"knots {[round(t, 4) for t in e['knot_times']]}")
                 print(f"values {[[round(v, 4) for v in row] for row in e['values']]}")
                 print(f"source job {e['source']['job_id']}")
+        elif args.library_command == "basis":
+            b = client.basis(args.family, args.k)
+            ve = ", ".join(f"{v:.3f}" for v in b["variance_explained"])
+            print(json.dumps(b) if args.json else
+                  f"basis {b['id']} of {args.family!r}: k={b['k']}, variance explained [{ve}], "
+                  f"{len(b['members'])} members")
+        elif args.library_command == "refine":
+            job = client.refine(args.family, along=args.along, basis=args.basis,
+                                max_evaluations=args.max_evaluations, seed=args.seed,
+                                extrapolate=args.extrapolate, **params)
+            if not args.wait:
+                print(json.dumps({"id": job.id, "url": job.url, "status": job.data["status"],
+                                  "start": job.start, "answer": _answer_summary(job.answer)})
+                      if args.json else
+                      f"refinement job {job.id} {job.data['status']}: {job.url}; "
+                      f"{job.start['from']}; follow it with: cmrt watch {job.id}")
+                return 0
+            if not args.json:
+                print(f"refinement job {job.id}: {job.start['from']}", flush=True)
+            return _follow(client, job, f"refine {args.family}"[:16], args.json)
         else:
             out = client.interpolate(args.family, along=args.along,
-                                     extrapolate=args.extrapolate, **params)
+                                     extrapolate=args.extrapolate, verify=args.verify,
+                                     **params)
+            if args.out:
+                Path(args.out).write_text(json.dumps(out, indent=1))
             if args.json:
                 print(json.dumps(out))
             else:
-                print(json.dumps({k: v for k, v in out.items() if k != "curve"}))
+                print(_answer_text(out))
         return 0
+
+
+def _answer_summary(out: dict[str, Any] | None) -> dict[str, Any] | None:
+    """An answer without its curve (what a terminal shows)."""
+    return None if out is None else {k: v for k, v in out.items() if k != "curve"}
+
+
+def _answer_text(out: dict[str, Any]) -> str:
+    """The library's answer as a few lines: what it is, and what happened when simulated."""
+    lines = [f"{out['family']} at {out['key']} = {out['value']:g}: {out['source']} "
+             f"({', '.join(out['members'])})"]
+    if out.get("note"):
+        lines.append(f"note: {out['note']}")
+    sw = out.get("switch")
+    if sw:
+        lines.append(f"neighbours {sw['distance']:.3f} apart (switch above {sw['threshold']:g}): "
+                     + ("SWITCH, not averaged" if sw["detected"] else "one strategy"))
+    o = out.get("outcome")
+    if o:
+        lines.append(f"simulated{' (kept)' if o['cached'] else ''}: objective "
+                     f"{_f(o.get('objective'))}, fell {o.get('fell')}"
+                     + (f" {o['fall_direction']}" if o.get("fall_direction") else "")
+                     + f", task success {o.get('task_success')}; verdict {out['verdict']}")
+    lines.append(out["message"])
+    if out.get("refine"):
+        lines.append(f"refine: {out['refine']['command']}")
+    return "\n".join(lines)
 
 
 def _param(text: str) -> tuple[str, float]:
@@ -285,7 +336,28 @@ def add_parsers(sub: Any) -> None:
     li.add_argument("--family", required=True)
     li.add_argument("--along", help="the interpolated parameter (when several are given)")
     li.add_argument("--extrapolate", action="store_true")
-    for p in (ll, ls, li):
+    li.add_argument("--verify", action="store_true",
+                    help="simulate the answer once at these values (kept by the library); an "
+                         "answer that falls, fails its task or is weak is replaced by the best "
+                         "neighbouring member that stands, or said to be no good")
+    li.add_argument("--out", metavar="ANSWER.json",
+                    help="write the answer; `cmrt simulate SPEC --cmrt ANSWER.json` replays it")
+    lb = lsub.add_parser("basis", help="build a PCA basis of a family's library CMRTs")
+    lb.add_argument("--family", required=True)
+    lb.add_argument("--k", type=int, default=3, help="components (default 3)")
+    lr = lsub.add_parser("refine", help="refine the library's answer in the family's basis",
+                         description="A job searching the family's PCA basis from the library's "
+                         "best answer at the task parameter values, under a small budget; its "
+                         "result joins the library as a member.")
+    lr.add_argument("params", nargs="+", type=_param, metavar="NAME=VALUE")
+    lr.add_argument("--family", required=True)
+    lr.add_argument("--along", help="the interpolated parameter (when several are given)")
+    lr.add_argument("--extrapolate", action="store_true")
+    lr.add_argument("--basis", help="a basis id (default: the family's newest)")
+    lr.add_argument("--max-evaluations", type=int, help="the budget (default 150)")
+    lr.add_argument("--seed", type=_seed)
+    lr.add_argument("--wait", action="store_true", help="follow the job until it ends")
+    for p in (ll, ls, li, lb, lr):
         _url_arg(p)
         p.add_argument("--json", action="store_true")
         p.set_defaults(func=cmd_library)

@@ -208,6 +208,9 @@ class Job:
         self.budget = dict(budget) if budget else None
         self._last_generation = -1
         self._gen: dict[str, Any] | None = None
+        #: A refinement's (Client.refine): the answer it started from, and its start.
+        self.answer: dict[str, Any] | None = None
+        self.start: dict[str, Any] | None = None
 
     def __repr__(self) -> str:
         return f"Job({self.id!r}, status={self.data.get('status')!r})"
@@ -477,13 +480,38 @@ class Client:
         return self._request("GET", f"/cmrts/{cmrt_id}")
 
     def interpolate(self, family: str, along: str | None = None, extrapolate: bool = False,
-                    **params: float) -> dict[str, Any]:
-        """GET /cmrts/interpolate: the CMRT at task parameter values (`duration=0.5`) from the
-        library neighbours on either side (`along` names the interpolated parameter when
-        several are given; the others must match)."""
+                    verify: bool = False, **params: float) -> dict[str, Any]:
+        """GET /cmrts/interpolate: the library's answer at task parameter values
+        (`duration=0.5`, or a spec path: `**{"task.mass": 45}`) and what it is: `source`
+        (member, interpolated, refined), `members`, the neighbours' `switch` check; with
+        `verify=True` simulated once (then kept by the library): `outcome`, `verdict` ("good",
+        "weak", "falls", "fails_task", "failed") and `message`. `along` names the interpolated
+        parameter when several are given; the others must match."""
         query: dict[str, Any] = {"family": family, "along": along,
-                                 "extrapolate": extrapolate or None, **params}
+                                 "extrapolate": extrapolate or None,
+                                 "verify": verify or None, **params}
         return self._request("GET", "/cmrts/interpolate", params=query)
+
+    def refine(self, family: str, along: str | None = None, basis: str | None = None,
+               max_evaluations: int | None = None, seed: int | None = None,
+               extrapolate: bool = False, **params: float) -> Job:
+        """POST /refinements: a job searching the family's PCA basis (the newest, or `basis`)
+        from the library's best answer at the task parameter values; its result joins the
+        library. The returned job's `answer` is the answer it started from."""
+        body: dict[str, Any] = {"family": family, "parameters": params}
+        for k, v in (("along", along), ("basis", basis), ("max_evaluations", max_evaluations),
+                     ("seed", seed)):
+            if v is not None:
+                body[k] = v
+        if extrapolate:
+            body["extrapolate"] = True
+        out = self._request("POST", "/refinements", json_body=body)
+        job = Job(self, out["id"], {"id": out["id"], "status": out["status"],
+                                    "name": out["answer"]["family"]},
+                  budget=out.get("budget"))
+        job.answer = out["answer"]
+        job.start = out["start"]
+        return job
 
     def basis(self, family: str, k: int) -> dict[str, Any]:
         """POST /bases: a PCA basis of the family's library CMRTs."""

@@ -37,6 +37,9 @@ CMRT_TASK_BATCH           Celery: most candidates per task            2
 CMRT_API_TOKEN            bearer token the API requires; unset: open  None
 CMRT_API_PUBLIC_READS     with a token: GET endpoints open too        false
 CMRT_PUBLIC_URL           base of URLs the API returns; unset: paths  None
+CMRT_ALLOWED_HOSTS        Host names the API answers besides          "" (loopback only)
+                          loopback and the public URL's (comma-
+                          separated; `*`: any, the check off)
 CMRT_SIMULATION_WORKERS   API processes for POST /simulations clips   1
 CMRT_API_DRIVERS          `cmrt serve` drives jobs and families;      true
                           false: `cmrt driver` processes do
@@ -53,15 +56,20 @@ The SQLite file's folder is created on demand by `store.db.make_engine` (or
 
 from __future__ import annotations
 
+import ipaddress
+import re
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import Field, SecretStr, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 DEFAULT_DATA_DIR = Path("./cmrt-data")
 DB_FILE_NAME = "cmrt.db"
+#: One entry of CMRT_ALLOWED_HOSTS without a colon: a DNS name or an IPv4 address (an entry
+#: with a colon must be an IPv6 address, bare or in brackets); no scheme, port or path.
+_HOST_NAME = re.compile(r"[a-z0-9_]([a-z0-9_-]*[a-z0-9_])?(\.[a-z0-9_]([a-z0-9_-]*[a-z0-9_])?)*\.?")
 
 
 class Settings(BaseSettings):
@@ -122,6 +130,12 @@ class Settings(BaseSettings):
     #: returns paths (`/jobs/<id>`). Never taken from the request's Host header.
     public_url: Annotated[str | None, Field(pattern=r"^https?://[^\s/?#]+(/[^\s?#]*)?$")] = None
 
+    #: Host names (the `Host` header, port ignored) the API answers besides the loopback names
+    #: and addresses, the bind address and the public URL's host (service.security); a page
+    #: whose DNS name was rebound to this machine sends its own name and is refused. Given as
+    #: a comma-separated string (`CMRT_ALLOWED_HOSTS=cmrt.lan,api`); `*` turns the check off.
+    allowed_hosts: Annotated[list[str], NoDecode] = []
+
     #: Processes of the API's own pool for what-if clips (POST /simulations).
     simulation_workers: Annotated[int, Field(ge=1, le=64)] = 1
 
@@ -137,6 +151,35 @@ class Settings(BaseSettings):
     @classmethod
     def _zero_is_unset(cls, v: object) -> object:
         return None if v in (0, "0", "") else v
+
+    @field_validator("allowed_hosts", mode="before")
+    @classmethod
+    def _comma_separated(cls, v: object) -> object:
+        if isinstance(v, str):
+            v = v.split(",")
+        if isinstance(v, list | tuple):  # names compare case-insensitively; blanks are dropped
+            return [h.strip().lower() if isinstance(h, str) else h for h in v
+                    if not isinstance(h, str) or h.strip()]
+        return v
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _host_names(cls, v: list[str]) -> list[str]:
+        out = []
+        for given in v:
+            h = given
+            if ":" in given:  # an IPv6 address, kept bare (as service.security compares it)
+                try:
+                    h = str(ipaddress.IPv6Address(given.removeprefix("[").removesuffix("]")))
+                except ValueError:
+                    h = ""
+            elif given != "*" and not _HOST_NAME.fullmatch(given):
+                h = ""
+            if not h:
+                raise ValueError(f"{given!r} is not a host name or address (no scheme, port "
+                                 "or path; `*` for any)")
+            out.append(h)
+        return out
 
     @field_validator("log_level", mode="before")
     @classmethod

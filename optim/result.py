@@ -363,3 +363,36 @@ class OptimizationResult:
 
 
 __all__ = ["RESULT_FORMAT", "OptimizationResult"]
+
+
+def load_cmrt(path: str | Path) -> CmrtSpline:
+    """The CMRT of a file: an optimisation result (`cmrt optimize --out`), an interpolation
+    (`cmrt interpolate --out`) or a library answer (`cmrt library interpolate --out`), each
+    of which carries the decoded spline (`length`, `knot_times`, `values`, optional
+    `vertical_values`). ResultFileError naming the file and the field otherwise."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except OSError as err:
+        raise ResultFileError(f"{p}: cannot read CMRT file ({err.strerror})") from None
+    except json.JSONDecodeError as err:
+        raise ResultFileError(f"{p}: not valid JSON ({err})") from None
+    if isinstance(data, Mapping) and "spec" in data and "params" in data:
+        return OptimizationResult.from_dict(data, str(p)).spline()
+    if not isinstance(data, Mapping):
+        raise ResultFileError(f"{p}: a CMRT file must be a JSON object")
+    for name in ("length", "knot_times", "values"):
+        if name not in data:
+            raise ResultFileError(f"{p}: missing field {name!r} (a result, an interpolation "
+                                  "or a library answer carries it)")
+    if not _num(data["length"]) or data["length"] <= 0:
+        raise ResultFileError(f"{p}: field 'length' must be a positive number")
+    for name in ("knot_times", "values"):
+        if not _num_list(data[name]) or len(data[name]) != len(data["knot_times"]):
+            raise ResultFileError(f"{p}: field {name!r} must be a list of numbers, one per knot")
+    vy = data.get("vertical_values")
+    if vy is not None and (not _num_list(vy) or len(vy) != len(data["knot_times"])):
+        raise ResultFileError(f"{p}: field 'vertical_values' must be null or one number per knot")
+    return CmrtSpline(float(data["length"]), np.asarray(data["knot_times"], dtype=float),
+                      np.asarray(data["values"], dtype=float),
+                      None if vy is None else np.asarray(vy, dtype=float))

@@ -47,8 +47,13 @@ class NoisyFlat:
     level: float = 1.0
     amplitude: float = 0.01
     salt: int = 0
+    #: s of wall time per call, without CPU: an evaluation of fixed length that never
+    #: converges (bench/capacity.py stands sleeping workers in for simulating ones)
+    sleep: float = 0.0
 
     def __call__(self, x: np.ndarray) -> EvalOutcome:
+        if self.sleep:
+            time.sleep(self.sleep)
         return EvalOutcome(objective=self.level + self.amplitude * _hash_uniform(x, self.salt))
 
 

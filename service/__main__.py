@@ -2,6 +2,6 @@
 
 import sys
 
-from cli.main import main
+from service.command import main
 
-sys.exit(main(["serve", *sys.argv[1:]]))
+sys.exit(main())

@@ -23,7 +23,7 @@ from fastapi.staticfiles import StaticFiles
 from cmrt.settings import Settings, get_settings
 from service.deps import Services, no_nul
 from service.errors import install_error_handlers
-from service.openapi import install_openapi
+from service.openapi import install_openapi, operation_id
 from service.routers import (
     bases,
     cmrts,
@@ -32,6 +32,7 @@ from service.routers import (
     jobs,
     links,
     pages,
+    refinements,
     replays,
     simulations,
 )
@@ -84,11 +85,13 @@ def create_app(
         dependencies=[Depends(no_nul)],
         docs_url=None,  # service.routers.pages serves /docs from the project's own assets
         redoc_url=None,
+        generate_unique_id_function=operation_id,
     )
     app.state.services = svc
     install_error_handlers(app)
     install_openapi(app, settings)
-    for module in (jobs, families, cmrts, bases, simulations, replays, links, health, pages):
+    for module in (jobs, families, cmrts, refinements, bases, simulations, replays, links, health,
+                   pages):
         app.include_router(module.router)
     static = resources.files("service").joinpath("static")
     app.mount("/static", StaticFiles(directory=str(static)), name="static")

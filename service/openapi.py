@@ -6,16 +6,23 @@ FastAPI's generated document is post-processed once (`install_openapi`):
   each operation lists the codes it can answer (`ERRORS`, plus what `error_responses` adds);
 - request bodies read by hand (`POST /jobs`, `POST /bases`) are documented from their models;
 - pydantic's `$defs` are moved into `components/schemas` and every `#/$defs/X` reference is
-  rewritten, so each `$ref` of the document resolves.
+  rewritten, so each `$ref` of the document resolves;
+- made usable by client generators (openapi-python-client, tests/service/test_generated_client.py):
+  operation ids are the router's tag and the function's name (`operation_id`, e.g.
+  `jobs_cancel_job`), every schema name is unique (two models of one name are an error), and
+  an object-valued property's default (`character: {...}`) moves into its description
+  (`generator_friendly`: generators refuse a default on a property that is a model).
 """
 
 from __future__ import annotations
 
 import copy
+import json
 from typing import Any
 
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
+from fastapi.routing import APIRoute
 from pydantic import BaseModel
 from pydantic.json_schema import models_json_schema
 
@@ -27,7 +34,8 @@ REF_PREFIX = "#/components/schemas/"
 
 #: What each error code means in this API (the description of its documented response).
 ERRORS: dict[int, str] = {
-    400: "Malformed JSON, or JSON nested deeper than the limit (service.body.MAX_JSON_DEPTH)",
+    400: "A Host header that names no host of this service (service.security), malformed "
+         "JSON, or JSON nested deeper than the limit (service.body.MAX_JSON_DEPTH)",
     401: "Missing or wrong API token (only when CMRT_API_TOKEN is set)",
     403: "A state-changing request from another origin (its Origin is not the service's, or "
          "Sec-Fetch-Site says cross-site or same-site)",
@@ -44,6 +52,28 @@ NO_DATABASE = frozenset({"/dashboard", "/docs", "/openapi.json", "/"})
 _RETRY_AFTER = {"Retry-After": {"description": "seconds to wait before retrying",
                                 "schema": {"type": "integer", "minimum": 1}}}
 _PROBLEM = {"$ref": REF_PREFIX + "Problem"}
+
+
+def operation_id(route: APIRoute) -> str:
+    """The operation id of a route: its router's tag and its function's name
+    (`jobs_cancel_job`), what a generated client names the call (FastAPI's default adds the
+    path and method: `cancel_job_jobs__job_id__cancel_post`)."""
+    return f"{route.tags[0]}_{route.name}" if route.tags else route.name
+
+
+def generator_friendly(schemas_: dict[str, Any]) -> None:
+    """Move the default of every property that is a model or a union of models (`{"$ref":
+    ..., "default": {...}}`) into its description, in place: the default is still documented
+    and still applied by the server, and generators that refuse a default on a model property
+    (it would have to be built in the generated code) can read the schema."""
+    for schema in schemas_.values():
+        for prop in (schema.get("properties") or {}).values():
+            if "type" not in prop and isinstance(prop.get("default"), dict):  # a model, or
+                # a union of models (`controller`)
+                default = json.dumps(prop.pop("default"), separators=(", ", ": "))
+                text = prop.get("description", "").rstrip(".")
+                prop["description"] = (f"{text}. " if text else "") + \
+                    f"Default (when absent): {default}"
 
 
 def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
@@ -138,11 +168,12 @@ def _refs(node: Any) -> set[str]:
 
 
 def build_openapi(app: FastAPI, settings: Settings,
-                  always: tuple[int, ...] = (422,)) -> dict[str, Any]:
+                  always: tuple[int, ...] = (400, 422)) -> dict[str, Any]:
     """The exact document of `app` under `settings` (see the module docstring). `always`:
-    error codes every operation can answer (422: a NUL character in the path or query, see
-    service.deps); every operation but the `NO_DATABASE` pages may answer 503 with
-    `Retry-After` when the database is unreachable (service.errors). With an API token, the
+    error codes every operation can answer (400: a Host that is not the service's, see
+    service.security; 422: a NUL character in the path or query, see service.deps); every
+    operation but the `NO_DATABASE` pages may answer 503 with `Retry-After` when the database
+    is unreachable (service.errors). With an API token, the
     operations that need it say so (`security`, 401); state-changing ones answer 403 to
     requests from another origin (service.security)."""
     doc = get_openapi(title=app.title, version=app.version, description=app.description,
@@ -193,6 +224,10 @@ def build_openapi(app: FastAPI, settings: Settings,
                                               and r.removeprefix(REF_PREFIX) in components)}
     if missing:
         raise ValueError(f"OpenAPI: unresolved references {sorted(missing)}")
+    qualified = sorted(n for n in components if "__" in n)
+    if qualified:  # pydantic names two models of one name by their module paths
+        raise ValueError(f"OpenAPI: schema names {qualified} are not unique model names")
+    generator_friendly(components)
     return doc
 
 

@@ -105,6 +105,16 @@ class JobOut(BaseModel):
     spec: dict[str, Any] | None = None
 
 
+class CancelAccepted(BaseModel):
+    """A cancellation asked for (`POST /jobs/{id}/cancel`, `POST /families/{id}/cancel`): the
+    driver stops the work at its next step; `status` is the state when it was asked."""
+
+    id: str
+    status: str
+    cancel_requested: bool
+    url: str
+
+
 class JobPage(BaseModel):
     items: list[JobOut]
     total: int
@@ -222,10 +232,228 @@ class BasisPage(BaseModel):
     offset: int
 
 
+class CmrtClip(BaseModel):
+    """The clip a library CMRT was optimised on, s."""
+
+    preparation: float
+    duration: float
+    decay: float
+    length: float
+
+
+class CmrtSource(BaseModel):
+    """Where a library CMRT came from: its job (null when imported) and the spec it was
+    optimised on (null when stored without it)."""
+
+    job_id: str | None
+    job_url: str | None
+    spec: dict[str, Any] | None
+
+
+class CmrtOut(CmrtSummary):
+    """One library CMRT with its spline and sampled curve."""
+
+    clip: CmrtClip
+    params: list[float]
+    knot_times: list[float]
+    values: list[Any] = Field(description="horizontal knot values, m; [dx, dy] pairs when the "
+                                          "CMRT is vertical too")
+    fell_without: bool | None
+    source: CmrtSource
+
+
 class BasisRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     family: Annotated[str, Field(min_length=1, max_length=100)]
     k: Annotated[int, Field(ge=1, le=16)] = 3
+
+
+# ---- the library's answers ----------------------------------------------------------------
+class AnswerOutcome(BaseModel):
+    """A served CMRT simulated at the query's value (kept in the library: `cached` when this
+    query did not simulate it)."""
+
+    status: str
+    objective: float | None = None
+    fell: bool | None = None
+    fall_direction: str | None = None
+    task_success: bool | None = None
+    cpu_seconds: float | None = None
+    error: str | None = None
+    spec_hash: str
+    cached: bool
+
+
+class AnswerTry(BaseModel):
+    """One CMRT the library simulated for an answer."""
+
+    source: str
+    members: list[str]
+    outcome: AnswerOutcome
+
+
+class AnswerSwitch(BaseModel):
+    """The library's check of the two neighbours: detected when their spline parameters lie
+    further apart (RMS, box units) than the threshold."""
+
+    detected: bool
+    distance: float
+    threshold: float
+    knot_shift: float
+    between: list[dict[str, Any]]
+
+
+class AnswerNeighbour(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    id: str
+    objective: float
+    task_parameters: dict[str, float]
+    url: str | None = None
+
+
+class LibraryAnswer(BaseModel):
+    """What the library serves at a task parameter, and what it is."""
+
+    family: str
+    key: str
+    value: float
+    note: str | None = None
+    source: Literal["member", "interpolated", "refined"]
+    members: list[str]
+    neighbours: list[AnswerNeighbour]
+    weight: float
+    exact: bool
+    extrapolated: bool
+    switch: AnswerSwitch | None
+    predicted_objective: float
+    verified: bool
+    verdict: Literal["unverified", "good", "weak", "falls", "fails_task", "failed"]
+    outcome: AnswerOutcome | None
+    tried: list[AnswerTry]
+    message: str
+    refine: dict[str, Any] | None = None
+    length: float
+    knot_times: list[float]
+    values: list[float]
+    vertical_values: list[float] | None
+    curve: dict[str, list[float]]
+
+
+class RefineRequest(BaseModel):
+    """A refinement at a task parameter: `parameters` names the value (one key, or several
+    with `along`), searched in the family's newest PCA basis (or `basis`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    family: Annotated[str, Field(min_length=1, max_length=100)]
+    parameters: Annotated[dict[Annotated[str, Field(min_length=1, max_length=64)],
+                               Annotated[float, Field(allow_inf_nan=False)]],
+                          Field(min_length=1, max_length=16)]
+    along: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    basis: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    max_evaluations: Annotated[int, Field(ge=1, le=1000)] = 150
+    seed: Annotated[int, Field(ge=0, lt=2**31)] = 0
+    extrapolate: bool = False
+
+
+class RefineAccepted(BaseModel):
+    id: str
+    url: str
+    status: str
+    budget: JobBudget
+    basis_id: str
+    start: dict[str, Any]
+    answer: LibraryAnswer
+
+
+REFINE_EXAMPLE: dict[str, Any] = {"family": "domino", "parameters": {"mass": 45}}
+
+
+# ---- families (service.routers.families; docs/families.md) ---------------------------------
+class FamilyAccepted(BaseModel):
+    id: str
+    url: str
+    status: str
+    runs: int = Field(description="runs of the family's plan (members, references, reduced "
+                                  "runs, the probes)")
+    budget: JobBudget = Field(description="the whole family's: the sum over its runs")
+
+
+class FamilyLinks(BaseModel):
+    cancel: str
+    dashboard: str
+
+
+class FamilyRun(BaseModel):
+    """One run of a family's plan and the job that runs it (null until it is started)."""
+
+    id: str
+    kind: str
+    value: float | None
+    warm_from: str | None = Field(description="the run whose optimum starts this one (null: "
+                                              "the flat spline)")
+    needs: list[str] = Field(description="runs that must be finished first")
+    job_id: str | None
+    job_url: str | None
+    status: str
+    best_objective: float | None
+    evaluations: int
+    start: str | None = Field(description="where the run's search started (the job's "
+                                          "`start.from`)")
+    curve: list[list[float]] | None = Field(
+        None, description="[evaluations, best so far] per generation; only with curves=true")
+
+
+class FamilyProgress(BaseModel):
+    runs: int
+    done: int
+    running: int
+    queued: int
+    not_started: int
+
+
+class FamilyOut(BaseModel):
+    """A family; `GET /families/{id}` adds its request, runs and progress, and once done the
+    members, the PCA basis and the checks (docs/families.md)."""
+
+    id: str
+    url: str
+    family: str
+    param: str
+    status: str
+    error: str | None
+    cancel_requested: bool
+    created_at: datetime
+    finished_at: datetime | None
+    values: list[float] | None
+    strategy: str | None
+    links: FamilyLinks
+    spec: dict[str, Any] | None = Field(None, description="the family request as stored")
+    runs: list[FamilyRun] | None = None
+    progress: FamilyProgress | None = None
+    members: list[dict[str, Any]] | None = None
+    basis: dict[str, Any] | None = None
+    checks: dict[str, Any] | None = None
+    paper_table2: list[dict[str, Any]] | None = Field(
+        None, description="the paper's Table 2 rows where the task has one")
+
+
+class FamilyPage(BaseModel):
+    items: list[FamilyOut]
+    total: int
+    limit: int
+    offset: int
+
+
+# ---- operations --------------------------------------------------------------------------
+class Health(BaseModel):
+    """`GET /health` (200; a degraded state is a 503 with `detail`)."""
+
+    status: Literal["ok", "degraded"]
+    database: str = Field(description='"ok" or "error"')
+    broker: str = Field(description='"ok", "error", or "none (embedded local process pool)"')
+    executor: str
+    drivers: int = Field(description="jobs and families this process drives now")
+    detail: str | None = Field(None, description="what is unreachable (degraded only)")
 
 
 # ---- what-if simulations ------------------------------------------------------------------

@@ -1,5 +1,13 @@
 """The HTTP edge's protections, one ASGI middleware (`HttpEdge`) in front of the routes.
 
+- Host names: every request (reads too) must name the service in its `Host` header (port
+  ignored): a loopback name or address (`localhost`, 127.0.0.0/8, `::1`), the bind address
+  (`CMRT_API_HOST` / `--host`, unless a wildcard), the host of `CMRT_PUBLIC_URL`, or one of
+  `CMRT_ALLOWED_HOSTS` (`*`: any). Anything else is a 400 naming the host, before any route
+  runs. This is what stops DNS rebinding: a page of another site whose name is made to resolve
+  to this machine is, to the browser, same-origin with the API, but its requests carry the
+  page's own name as `Host`. A request without `Host` (HTTP/1.0) is not a browser's and passes.
+  `host_warning` says when a wildcard bind leaves only loopback names allowed.
 - Methods: `OPTIONS <path>` answers 204 with every method the path has in `Allow`; any other
   method the path lacks answers 405 with the same `Allow` (Starlette alone names only the
   first route matching the path). `HEAD` is served wherever `GET` is: the GET route answers
@@ -29,6 +37,7 @@
 from __future__ import annotations
 
 import hmac
+import ipaddress
 import json
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -60,8 +69,78 @@ _COMMON_HEADERS = [(b"x-content-type-options", b"nosniff"), (b"x-frame-options",
                    (b"referrer-policy", b"no-referrer")]
 
 
+#: Host names every request may carry besides the configured ones (the loopback addresses,
+#: 127.0.0.0/8 and ::1, are recognised as addresses: `_is_loopback`).
+LOOPBACK_NAMES = frozenset({"localhost"})
+#: Bind addresses meaning "every interface" (the bind address is then no host name to allow).
+WILDCARD_BINDS = frozenset({"0.0.0.0", "::", "", "[::]"})
+
+
+def host_of(value: str) -> str | None:
+    """The host name of a `Host` header value, lower-case, without port, brackets or a final
+    dot ("[::1]:8000" -> "::1"); None when it is no `host[:port]`."""
+    try:
+        parts = urlsplit("//" + value.strip())
+        _ = parts.port  # ValueError on a port that is not a number in range
+    except ValueError:
+        return None
+    if parts.username is not None or parts.path or parts.query or parts.fragment:
+        return None
+    host = (parts.hostname or "").rstrip(".")
+    return host or None
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def allowed_hosts(settings: Settings) -> frozenset[str]:
+    """The host names the service answers to besides loopback addresses (module docstring)."""
+    names = set(LOOPBACK_NAMES) | set(settings.allowed_hosts)
+    if settings.public_url:
+        public = urlsplit(settings.public_url).hostname
+        if public:
+            names.add(public.rstrip("."))
+    if settings.api_host not in WILDCARD_BINDS:
+        bind = host_of(settings.api_host if ":" not in settings.api_host
+                       or settings.api_host.startswith("[") else f"[{settings.api_host}]")
+        if bind:
+            names.add(bind)
+    return frozenset(names)
+
+
+def host_allowed(host_header: str | None, names: frozenset[str]) -> bool:
+    """Whether a request with this `Host` header value may be answered (`names`: from
+    `allowed_hosts`); no header at all is allowed (see the module docstring)."""
+    if host_header is None or "*" in names:
+        return True
+    host = host_of(host_header)
+    return host is not None and (host in names or _is_loopback(host))
+
+
+def host_warning(settings: Settings) -> str | None:
+    """What to log at start when a wildcard bind (every interface) answers only loopback
+    names: the service is reachable from other machines, but by their address or name only
+    once CMRT_PUBLIC_URL or CMRT_ALLOWED_HOSTS names it."""
+    if settings.api_host in WILDCARD_BINDS and not settings.public_url \
+            and not settings.allowed_hosts:
+        return (f"bound to every interface ({settings.api_host or 'all'}) but neither "
+                "CMRT_PUBLIC_URL nor CMRT_ALLOWED_HOSTS is set: only requests naming a "
+                "loopback host (localhost, 127.0.0.1, ::1) are answered; others get 400 "
+                "(set CMRT_ALLOWED_HOSTS to the names clients use)")
+    return None
+
+
 #: Methods probed when computing a path's `Allow` header.
 _METHODS = ("GET", "POST", "PUT", "PATCH", "DELETE")
+#: Paths whose `Allow` set `HttpEdge` remembers. Probing every route with every method costs
+#: about 0.35 ms, more than the rest of a `/health` request; the routes are fixed once the app
+#: serves, so a path's set never changes. Past this many paths (ids in them) the oldest are
+#: forgotten: memory stays bounded whatever paths clients send.
+ALLOW_MEMO_PATHS = 4096
 
 
 def allowed_methods(app: Any, scope: Scope) -> list[str]:
@@ -101,6 +180,19 @@ class HttpEdge:
         self.settings = settings
         self.secret = token_of(settings)  # the signed links' key
         self.token = self.secret.encode()  # compared with the bearer header's bytes
+        self.hosts = allowed_hosts(settings)
+        self._allow: dict[tuple[str, str], list[str]] = {}  # see ALLOW_MEMO_PATHS
+
+    def allowed(self, scope: Scope) -> list[str]:
+        """`allowed_methods(self.app, scope)`, remembered per path (ALLOW_MEMO_PATHS)."""
+        key = (scope.get("root_path", ""), scope["path"])
+        methods = self._allow.get(key)
+        if methods is None:
+            methods = allowed_methods(self.app, scope)
+            if len(self._allow) >= ALLOW_MEMO_PATHS:
+                del self._allow[next(iter(self._allow))]
+            self._allow[key] = methods
+        return methods
 
     def _token_ok(self, scope: Scope) -> bool:
         for k, v in scope.get("headers", []):
@@ -127,7 +219,16 @@ class HttpEdge:
                 message = {**message, "headers": [*message.get("headers", []), *extra]}
             await send(message)
 
-        methods = allowed_methods(self.app, scope)
+        host = _header(scope, b"host")
+        given = None if host is None else host.decode("latin-1")
+        if not host_allowed(given, self.hosts):
+            # the name itself is not echoed (nothing of a Host header is ever reflected)
+            await _respond(send_with_headers, 400,
+                           "host: the Host header names no host of this service (loopback, "
+                           "the bind address, CMRT_PUBLIC_URL's host or CMRT_ALLOWED_HOSTS); "
+                           "a page whose name was rebound to this address is refused")
+            return
+        methods = self.allowed(scope)
         if methods and method == "OPTIONS":
             await _respond(send_with_headers, 204, None, {"allow": ", ".join(methods)})
             return

@@ -12,9 +12,11 @@ diverged (sim's DivergenceError), the process died, the time limit.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import threading
+from collections.abc import Iterator
 from typing import Any
 
 from optim.procpool import SlotPool, TimeLimitError, WorkerDiedError
@@ -123,24 +125,46 @@ class SimulationPool:
     async def call(self, fn: Any, *args: Any) -> dict[str, Any]:
         """`fn(*args)` (a picklable clip body answering `{"status": ...}`) in the pool, bounded
         as the module docstring says."""
+        with self._admitted():
+            task = self._get().submit(fn, *args)
+            try:
+                return await asyncio.wrap_future(task.future)
+            except (TimeLimitError, WorkerDiedError) as err:
+                return self._failure(err)
+
+    def call_sync(self, fn: Any, *args: Any) -> dict[str, Any]:
+        """`call` for a caller on a worker thread (a use case that simulates as it decides):
+        the same bounds, waiting on this thread."""
+        with self._admitted():
+            task = self._get().submit(fn, *args)
+            try:
+                return task.future.result()
+            except (TimeLimitError, WorkerDiedError) as err:
+                return self._failure(err)
+
+    def simulate(self, spec_data: dict[str, Any], params: list[float]) -> dict[str, Any]:
+        """One clip's outcome without traces, waiting on this thread (`call_sync`)."""
+        return self.call_sync(run_clip, spec_data, params, False, False)
+
+    @contextlib.contextmanager
+    def _admitted(self) -> Iterator[None]:
         with self._lock:
             if self._in_flight >= self.workers + MAX_WAITING:
                 raise SimulationBusyError
             self._in_flight += 1
         try:
-            task = self._get().submit(fn, *args)
-            try:
-                return await asyncio.wrap_future(task.future)
-            except TimeLimitError:
-                return {"status": "failed",
-                        "error": f"the clip ran past the time limit of {self.time_limit:g} s"}
-            except WorkerDiedError:
-                log.error("simulation: the pool process died")
-                return {"status": "failed", "error": "the simulation process died (crash or "
-                                                     "out of memory)"}
+            yield
         finally:
             with self._lock:
                 self._in_flight -= 1
+
+    def _failure(self, err: Exception) -> dict[str, Any]:
+        if isinstance(err, TimeLimitError):
+            return {"status": "failed",
+                    "error": f"the clip ran past the time limit of {self.time_limit:g} s"}
+        log.error("simulation: the pool process died")
+        return {"status": "failed", "error": "the simulation process died (crash or "
+                                             "out of memory)"}
 
     def close(self) -> None:
         with self._lock:

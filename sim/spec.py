@@ -298,6 +298,46 @@ class TaskSpec(_Strict):
         window's duration and the task type's own (e.g. a push's signed `force`)."""
         return {"duration": self.clip.duration, **self.task.parameters()}
 
+    def parameter_paths(self) -> dict[str, str]:
+        """Each library parameter's dotted path in the spec document (`duration` ->
+        `clip.duration`, the domino's `mass` -> `task.mass`); a parameter that is not one plain
+        field (a push's signed force) maps to its main field."""
+        out = {"duration": "clip.duration"}
+        for key in self.task.parameters():
+            path = type(self.task).PARAMETER_PATHS.get(key)
+            out[key] = "task." + (path if path is not None else key)
+        return out
+
+    def library_key(self, name: str) -> str:
+        """The library parameter `name` names: a library key (`mass`) as it is, or its dotted
+        spec path (`task.mass`); ValueError naming both forms for anything else."""
+        paths = self.parameter_paths()
+        if name in paths:
+            return name
+        for key, path in paths.items():
+            if path == name:
+                return key
+        known = ", ".join(f"{k} ({p})" for k, p in sorted(paths.items()))
+        raise ValueError(f"{name!r} is not a task parameter of this {self.task_type} task; "
+                         f"its parameters are {known}")
+
+    def with_parameter(self, key: str, value: float) -> dict[str, Any]:
+        """This spec's document with library parameter `key` set to `value` (not validated:
+        parse it). KeyError if the task has no such parameter."""
+        doc = self.model_dump(mode="json", exclude_unset=False)
+        updates = ({"clip.duration": value} if key == "duration" else
+                   {"task." + p: v for p, v in self.task.parameter_updates(key, value).items()})
+        for path, v in updates.items():
+            node: Any = doc
+            *head, last = path.split(".")
+            for part in head:
+                node = node[int(part)] if isinstance(node, list) else node[part]
+            if isinstance(node, list):
+                node[int(last)] = v
+            else:
+                node[last] = v
+        return doc
+
     @property
     def cmrt_dimension(self) -> int:
         """Length of the parameter vector: knot times and control values (x, and y if vertical)."""

@@ -30,6 +30,7 @@ from store.records import (
     GenerationCounts,
     GenerationRecord,
     JobRecord,
+    VerificationRecord,
 )
 from store.repository import Repository, SqlRepository
 
@@ -66,6 +67,7 @@ __all__ = [
     "Repository",
     "SqlRepository",
     "StoreError",
+    "VerificationRecord",
     "init_db",
     "make_engine",
     "open_repository",

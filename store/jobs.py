@@ -11,6 +11,7 @@ from typing import Any
 from sqlalchemy import func, or_, select, update
 
 from cmrt.canonical import document_hash
+from store.db import READ_ONLY_OPTION
 from store.errors import Conflict, InvalidTransition, NotFound
 from store.models import Basis, Job
 from store.records import (
@@ -27,6 +28,9 @@ from store.sql import (
     _job_record,
     _json,
 )
+
+#: `ping`'s statement: one id of the jobs table, if any (its primary key index alone).
+_PING = select(Job.id).limit(1)
 
 
 class JobRepository(abc.ABC):
@@ -67,6 +71,12 @@ class JobRepository(abc.ABC):
     @abc.abstractmethod
     def get_job(self, job_id: str) -> JobRecord:
         """The job; raises NotFound."""
+
+    @abc.abstractmethod
+    def ping(self) -> None:
+        """Read one row id of the jobs table (none needed): raises when the database is
+        unreachable or its schema is gone. `/health`'s check, a single indexed read however
+        many jobs there are (counting them grows with the table)."""
 
     @abc.abstractmethod
     def cancel_requested(self, job_id: str) -> bool:
@@ -182,6 +192,11 @@ class SqlJobs(SqlBase, JobRepository):
             if job is None:
                 raise NotFound(f"job {job_id!a} not found")
             return _job_record(job)
+
+    def ping(self):
+        # Read-only: on SQLite a plain BEGIN, never the writers' BEGIN IMMEDIATE.
+        with self.engine.execution_options(**{READ_ONLY_OPTION: True}).connect() as conn:
+            conn.execute(_PING).first()
 
     def cancel_requested(self, job_id):
         with self._read() as s:

@@ -9,9 +9,10 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from sqlalchemy import Text, and_, cast, func, select
+from sqlalchemy.exc import IntegrityError
 
 from store.errors import Conflict, NotFound
-from store.models import Basis, Cmrt, CmrtParameter, Job
+from store.models import Basis, Cmrt, CmrtParameter, CmrtVerification, Job
 from store.records import (
     CMRT_ENTRY_FIELDS,
     WINNERS,
@@ -19,6 +20,7 @@ from store.records import (
     CmrtEntry,
     CmrtKey,
     CmrtRecord,
+    VerificationRecord,
 )
 from store.sql import (
     SqlBase,
@@ -85,6 +87,21 @@ class LibraryRepository(abc.ABC):
     def cmrt_families(self) -> list[tuple[str, int]]:
         """Every family of the library with its number of CMRTs, by name (one grouped,
         indexed query: the library page's list of families)."""
+
+    # ---- verified answers ---------------------------------------------------------------
+    @abc.abstractmethod
+    def add_verification(
+        self, *, family: str, spec_hash: str, params_hash: str, source: str,
+        members: Sequence[str], outcome: Mapping[str, Any],
+    ) -> VerificationRecord:
+        """Keep the simulated outcome of CMRT `params_hash` on spec `spec_hash` and return the
+        stored record: the first stored for that pair wins (a concurrent second one gets the
+        first back, so every reader sees one outcome)."""
+
+    @abc.abstractmethod
+    def get_verification(self, spec_hash: str, params_hash: str) -> VerificationRecord | None:
+        """The stored outcome of CMRT `params_hash` on spec `spec_hash`, None if never
+        simulated (one indexed lookup)."""
 
     # ---- PCA bases ----------------------------------------------------------------------
     @abc.abstractmethod
@@ -236,6 +253,29 @@ class SqlLibrary(SqlBase, LibraryRepository):
                              .order_by(Cmrt.family)).all()
             return [(str(f), int(n)) for f, n in rows]
 
+    # ---- verified answers ---------------------------------------------------------------
+    def add_verification(self, *, family, spec_hash, params_hash, source, members, outcome):
+        row = CmrtVerification(
+            id=str(uuid.uuid4()), family=family, spec_hash=spec_hash, params_hash=params_hash,
+            source=source, members=[str(m) for m in members],
+            outcome=_json(dict(outcome), "outcome"), created_at=self._clock(),
+        )  # fmt: skip
+        try:
+            with self._write() as s:
+                s.add(row)
+        except IntegrityError:  # stored meanwhile by another request: that one is the answer
+            pass
+        got = self.get_verification(spec_hash, params_hash)
+        assert got is not None
+        return got
+
+    def get_verification(self, spec_hash, params_hash):
+        with self._read() as s:
+            row = s.scalars(select(CmrtVerification).where(
+                CmrtVerification.spec_hash == spec_hash,
+                CmrtVerification.params_hash == params_hash)).one_or_none()
+            return None if row is None else _verification_record(row)
+
     # ---- PCA bases ----------------------------------------------------------------------
     def add_basis(self, *, family, k, mean, components, variance_explained, members, box=None):
         m = _json(mean, "mean")
@@ -266,6 +306,14 @@ class SqlLibrary(SqlBase, LibraryRepository):
                 raise NotFound(f"basis {basis_id!a} not found")
             return _basis_record(row)
 
+
+
+def _verification_record(v: CmrtVerification) -> VerificationRecord:
+    return VerificationRecord(
+        id=v.id, family=v.family, spec_hash=v.spec_hash, params_hash=v.params_hash,
+        source=v.source, members=list(v.members), outcome=dict(v.outcome),
+        created_at=v.created_at,
+    )  # fmt: skip
 
 
 def _character_matches(stored: Mapping[str, Any], wanted: Mapping[str, Any]) -> bool:

@@ -242,3 +242,27 @@ class Basis(Base):
     members: Mapped[Any] = mapped_column(JSON)
     box: Mapped[Any | None] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+
+
+class CmrtVerification(Base):
+    """The simulated outcome of a CMRT the library served (an interpolation, or a member at a
+    task it was not optimised for): one row per (spec, CMRT parameters), so that the next
+    identical query is answered without simulating."""
+
+    __tablename__ = "cmrt_verifications"
+    __table_args__ = (
+        UniqueConstraint("spec_hash", "params_hash", name="uq_cmrt_verifications_key"),
+    )
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    family: Mapped[str] = mapped_column(String(100), index=True)
+    spec_hash: Mapped[str] = mapped_column(String(64))
+    params_hash: Mapped[str] = mapped_column(String(64))
+    #: "member", "interpolated" or "refined": what the simulated CMRT was.
+    source: Mapped[str] = mapped_column(String(16))
+    #: Ids of the library CMRTs it was built from.
+    members: Mapped[Any] = mapped_column(JSON)
+    #: objective, fell, fall_direction, task_success, status, error, cpu_seconds.
+    outcome: Mapped[Any] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())
+

@@ -264,5 +264,22 @@ class BasisRecord:
     created_at: datetime
 
 
+@dataclass(frozen=True)
+class VerificationRecord:
+    """The stored outcome of simulating a CMRT the library served (`add_verification`)."""
+
+    id: str
+    family: str
+    spec_hash: str
+    params_hash: str
+    #: "member", "interpolated" or "refined".
+    source: str
+    #: Ids of the library CMRTs it was built from.
+    members: list[str]
+    #: objective, fell, fall_direction, task_success, status, error, cpu_seconds.
+    outcome: dict[str, Any]
+    created_at: datetime
+
+
 #: Field names of a library entry, in order (`CmrtEntry`).
 CMRT_ENTRY_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(CmrtEntry))

@@ -39,6 +39,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from application.bases import basis_from_record
 from application.jobs import job_spec
+from application.library import library_entry
 from cmrt.settings import Settings
 from optim.cmaes import CmaOptimizer, GenerationStats
 from optim.errors import EvaluationError
@@ -52,10 +53,9 @@ from optim.loop import (
 )
 from optim.outcome import EvalOutcome
 from optim.run import result_of
-from optim.spline import decode, sample_curve
 from sim.errors import SpecError
 from sim.spec import TaskSpec
-from store import CmrtEntry, NotFound, Repository, StoreError
+from store import NotFound, Repository, StoreError
 from store.records import (
     CANCELLED,
     CONVERGED,
@@ -351,30 +351,10 @@ class JobDriver:
         """The library entry: the better of the best candidate and the flat spline (never
         worse than no anticipation); `winner` records which one it is."""
         params, out = final.chosen
-        spline = decode(spec, params)
-        values: list[Any] = [float(v) for v in spline.values]
-        if spline.vertical_values is not None:
-            values = [[float(a), float(b)]
-                      for a, b in zip(spline.values, spline.vertical_values, strict=True)]
-        self.repo.add_cmrt(CmrtEntry(
-            family=spec.family_name,
-            character=spec.character.model_dump(mode="json"),
-            task_parameters=spec.task_parameters(),
-            preparation=spec.clip.preparation,
-            duration=spec.clip.duration,
-            decay=spec.clip.decay,
-            params=[float(v) for v in params],
-            knots=[float(v) for v in spline.knot_times],
-            values=values,
-            curve=sample_curve(spline),
-            objective=float(out.objective),
-            objective_without=float(final.flat.objective),
-            fell=bool(out.fell),
-            fell_without=bool(final.flat.fell),
-            winner=final.winner,
-            job_id=self.job_id,
-            spec=job.spec,
-        ))
+        self.repo.add_cmrt(library_entry(
+            spec, params, objective=float(out.objective), fell=bool(out.fell),
+            objective_without=float(final.flat.objective), fell_without=bool(final.flat.fell),
+            winner=final.winner, job_id=self.job_id, spec_document=job.spec))
 
 
 __all__ = [

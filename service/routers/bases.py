@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
@@ -20,7 +19,7 @@ from service.views import basis_out
 router = APIRouter(prefix="/bases", tags=["library"])
 
 
-@router.post("", status_code=201, summary="Build a PCA basis",
+@router.post("", status_code=201, summary="Build a PCA basis", response_model=schemas.BasisOut,
              openapi_extra=json_body(schemas.BasisRequest, example=schemas.BASIS_EXAMPLE),
              responses=error_responses(400, 413, 415, 422))
 async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -> JSONResponse:
@@ -30,9 +29,9 @@ async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -
         basis_id = build_library_basis(repo, req.family, req.k)
     except BasisError as err:
         raise ApiError(422, str(err)) from None
-    body = basis_out(repo.get_basis(basis_id), request)
-    return JSONResponse(json.loads(json.dumps(body, default=str)), status_code=201,
-                        headers={"Location": body["url"]})
+    body = schemas.BasisOut.model_validate(basis_out(repo.get_basis(basis_id), request))
+    return JSONResponse(body.model_dump(mode="json"), status_code=201,  # ISO 8601 times
+                        headers={"Location": body.url})
 
 
 @router.get("", response_model=schemas.BasisPage, summary="List PCA bases",
@@ -51,6 +50,7 @@ def list_bases(
             "limit": limit, "offset": offset}
 
 
-@router.get("/{basis_id}", summary="One PCA basis", responses=error_responses(404))
+@router.get("/{basis_id}", summary="One PCA basis", response_model=schemas.BasisOut,
+            responses=error_responses(404))
 def get_basis(basis_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     return basis_out(repo.get_basis(basis_id), request)

@@ -6,12 +6,21 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 
-from application.library import interpolate_library
+from application import answers
 from optim.errors import InterpolationError
 from service import schemas
-from service.deps import MAX_OFFSET, LibraryParams, RepoDep, task_parameters_doc, url_for
+from service.deps import (
+    MAX_OFFSET,
+    LibraryParams,
+    RepoDep,
+    ServicesDep,
+    task_parameters_doc,
+    url_for,
+)
 from service.errors import ApiError
 from service.openapi import error_responses
+from service.routers.simulations import RETRY_AFTER_S
+from service.simulations import SimulationBusyError
 from service.views import cmrt_out
 
 router = APIRouter(prefix="/cmrts", tags=["library"])
@@ -63,41 +72,89 @@ def library_families(repo: RepoDep) -> dict[str, Any]:
     return {"items": items, "total": len(items)}
 
 
-@router.get("/interpolate", summary="Interpolate a CMRT",
-            responses=error_responses(422), openapi_extra=task_parameters_doc(True))
-def interpolate_cmrt(
-    request: Request,
-    repo: RepoDep,
-    params: LibraryParams,
-    family: Annotated[str, Query(max_length=100)],
-    extrapolate: bool = False,
-    along: Annotated[str | None, Query(max_length=64)] = None,
-) -> dict[str, Any]:
-    """`GET /cmrts/interpolate?family=bend&duration=0.5`: linear interpolation between the
-    two library CMRTs nearest on either side; outside the stored range only with
-    `extrapolate=true`. With several parameters, `along` names the interpolated one and
-    the others must match exactly."""
+def query_point(repo: Any, family: str, params: dict[str, float], along: str | None,
+                 where: str = "") -> tuple[str, float, dict[str, float], str | None]:
+    """(library key, value, the other parameters, a note on a translated name) of a query at
+    task parameters `params` (`along` names the interpolated one when there are several)."""
     if not params:
-        raise ApiError(422, "a task parameter to interpolate at is required, e.g. duration=0.5")
+        raise ApiError(422, f"{where}a task parameter to interpolate at is required, e.g. "
+                            "mass=60")
     if along is None:
         if len(params) > 1:
             raise ApiError(422, "along: required when several task parameters are given")
         along = next(iter(params))
     if along not in params:
         raise ApiError(422, f"along: {along!r} is not among the given parameters")
-    filters = dict(params)
-    value = filters.pop(along)
+    notes, named = [], {}
+    for name, v in params.items():
+        key = name
+        if "." in name:  # a spec path (task.mass): the library names it by its key
+            try:
+                key, note = answers.library_parameter(repo, family, name)
+            except answers.AnswerError as err:
+                raise ApiError(422, f"{where}{err}") from None
+            if note:
+                notes.append(note)
+        if key in named:
+            raise ApiError(422, f"{where}{name}: given twice ({key})")
+        named[key] = v
+        if name == along:
+            along = key
+    value = named.pop(along)
+    return along, value, named, "; ".join(notes) or None
+
+
+def _refine_offer(request: Request, out: dict[str, Any]) -> dict[str, Any] | None:
+    """How to ask for a refinement where the answer is not a good one."""
+    if out["verdict"] == "good" or out["source"] != "interpolated" and out["exact"]:
+        return None
+    params = {out["key"]: out["value"]}
+    return {"method": "POST", "url": url_for(request, "refine_cmrt"),
+            "body": {"family": out["family"], "parameters": params},
+            "command": f"cmrt library refine --family {out['family']} "
+                       f"{out['key']}={out['value']:g} --wait"}
+
+
+@router.get("/interpolate", summary="The library's answer at a task parameter",
+            response_model=schemas.LibraryAnswer, responses=error_responses(422, 503),
+            openapi_extra=task_parameters_doc(True))
+def interpolate_cmrt(
+    request: Request,
+    svc: ServicesDep,
+    params: LibraryParams,
+    family: Annotated[str, Query(max_length=100)],
+    extrapolate: bool = False,
+    along: Annotated[str | None, Query(max_length=64)] = None,
+    verify: Annotated[bool, Query(
+        description="simulate the answer once at the query's value (kept in the library: the "
+                    "next identical query costs nothing); an answer that falls, fails its "
+                    "task or is weak is replaced by the best neighbouring member that stands, "
+                    "or said plainly to be no good")] = False,
+) -> dict[str, Any]:
+    """`GET /cmrts/interpolate?family=bend&duration=0.5[&verify=true]`: the CMRT the library
+    serves there and what it is: `source` (member, interpolated, refined), the `members` it
+    was built from, the neighbours' `switch` check (no average across a strategy switch: the
+    nearer member is served), and with `verify` its simulated `outcome` and `verdict`.
+    Outside the stored range only with `extrapolate=true`. With several parameters, `along`
+    names the interpolated one and the others must match exactly."""
+    key, value, filters, note = query_point(svc.repo, family, params, along)
+    simulate = svc.simulations.simulate if verify else None
     try:
-        out = interpolate_library(repo, family, along, value, filters=filters,
-                                  extrapolate=extrapolate)
-    except InterpolationError as err:
+        out = answers.serve(svc.repo, family, key, value, filters=filters,
+                            extrapolate=extrapolate, simulate=simulate)
+    except (InterpolationError, answers.AnswerError) as err:
         raise ApiError(422, str(err)) from None
+    except SimulationBusyError:
+        raise ApiError(503, "verify: every simulation process is busy; retry later",
+                       headers={"Retry-After": str(RETRY_AFTER_S)}) from None
+    out["note"] = note
     for n in out["neighbours"]:
         n["url"] = url_for(request, "get_cmrt", cmrt_id=n["id"])
+    out["refine"] = _refine_offer(request, out)
     return out
 
 
-@router.get("/{cmrt_id}", summary="One CMRT with its curve",
+@router.get("/{cmrt_id}", summary="One CMRT with its curve", response_model=schemas.CmrtOut,
             responses=error_responses(404))
 def get_cmrt(cmrt_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     return cmrt_out(repo.get_cmrt(cmrt_id), request, full=True)

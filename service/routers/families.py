@@ -82,6 +82,7 @@ def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
 
 
 @router.post("", status_code=202, summary="Grow a family of CMRTs along a task parameter",
+             response_model=schemas.FamilyAccepted,
              openapi_extra=json_body(schemas.FamilySpec, example=schemas.FAMILY_EXAMPLE),
              responses=error_responses(400, 413, 415, 422))
 async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
@@ -101,7 +102,9 @@ async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
                         status_code=202, headers={"Location": url})
 
 
-@router.get("", summary="List families", responses=error_responses(422))
+@router.get("", summary="List families", response_model=schemas.FamilyPage,
+            response_model_exclude_unset=True,
+            responses=error_responses(422))
 def list_families(
     request: Request,
     repo: RepoDep,
@@ -115,6 +118,7 @@ def list_families(
 
 
 @router.get("/{family_id}", summary="One family: runs, progress, members, basis, checks",
+            response_model=schemas.FamilyOut, response_model_exclude_unset=True,
             responses=error_responses(404))
 def get_family(
     family_id: str,
@@ -130,6 +134,7 @@ def get_family(
 
 
 @router.post("/{family_id}/cancel", status_code=202, summary="Cancel a family",
+             response_model=schemas.CancelAccepted,
              responses=error_responses(404))
 def cancel_family(family_id: str, request: Request, repo: RepoDep) -> JSONResponse:
     """Its unfinished runs are cancelled; the family ends `cancelled` (a finished family is

@@ -57,8 +57,9 @@ def _envelope(data: Any, seed: int | None, basis: str | None, start: str
 @router.post("", status_code=202, response_model=schemas.JobAccepted,
              summary="Submit a task spec for optimisation",
              openapi_extra=json_body(
-                 schemas.TaskSpec, schemas.JobRequest, example=schemas.JOB_EXAMPLE,
-                 description="a task spec, or the envelope `{spec, seed, basis}`"),
+                 schemas.JobRequest, example={"spec": schemas.JOB_EXAMPLE, "seed": 1},
+                 description="the envelope `{spec, seed, basis, start}` (a bare task spec as "
+                             "the whole body is accepted too, as earlier clients send it)"),
              responses=error_responses(400, 413, 415, 422))
 async def submit_job(
     request: Request,
@@ -70,8 +71,9 @@ async def submit_job(
                     "there is one (interpolated or stored; the job's `start` says which); "
                     "cold: from the flat spline")] = "library",
 ) -> JSONResponse:
-    """Body: a task spec (as the CLI's YAML/JSON files), or `{"spec": {...}, "seed": n,
-    "basis": "<basis id>"}`. 202 with the job's URL in `Location`."""
+    """Body: `{"spec": {...}, "seed": n, "basis": "<basis id>", "start": "library"}`, the
+    spec as the CLI's YAML/JSON files (a bare spec as the whole body is accepted too; the
+    query's seed, basis and start apply then). 202 with the job's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
     data, seed, basis, start = _envelope(data, seed, basis, start)
     try:  # the one parse: the drivers of this process find it by its hash (optim.objective)
@@ -175,6 +177,7 @@ def job_best(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
 
 
 @router.post("/{job_id}/cancel", status_code=202, summary="Cancel a job",
+             response_model=schemas.CancelAccepted,
              responses=error_responses(404, 409))
 def cancel_job(job_id: str, request: Request, repo: RepoDep) -> JSONResponse:
     job = repo.get_job(job_id)

@@ -34,7 +34,7 @@ Contract of a `Task` (one per simulator; `reset` before each run):
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from sim.props import PropDef
 from sim.specbase import StrictModel, quantity
@@ -81,8 +81,18 @@ class TaskConfig(StrictModel):
     def check(self, spec: Any, character: Character) -> None:
         return None
 
+    #: Where each of `parameters()`'s library parameters lives in this task block, as a dotted
+    #: path (`tire.mass`; a list index as a number, `punches.0.delay`). A parameter that is not
+    #: one plain field (a push's signed force) is set by overriding `parameter_updates`.
+    PARAMETER_PATHS: ClassVar[dict[str, str]] = {}
+
     def parameters(self) -> dict[str, float]:
         return {}
+
+    def parameter_updates(self, key: str, value: float) -> dict[str, Any]:
+        """The task block's fields to set (dotted path -> value) so that library parameter
+        `key` becomes `value`; KeyError if this task has no such parameter."""
+        return {self.PARAMETER_PATHS[key]: value}
 
     def build(self, spec: Any, character: Character) -> Task:
         raise NotImplementedError

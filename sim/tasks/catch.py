@@ -22,7 +22,7 @@ not feasible to catch the ball"). `task_success`: the ball is held at the end.
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from sim.dynamics import GRAVITY
 from sim.props import PropDef
@@ -56,6 +56,7 @@ class CatchConfig(TaskConfig):
     flight, arrival}, reach?}`."""
 
     type: Literal["catch"] = "catch"
+    PARAMETER_PATHS: ClassVar[dict[str, str]] = {"mass": "ball.mass"}
     hold: Pose
     ball: Ball = Ball()
     throw: Throw = Throw()

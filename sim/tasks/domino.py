@@ -20,7 +20,7 @@ that stands and topples it (whose objective is at most F0 / 2), and a larger til
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import model_validator
 
@@ -48,6 +48,7 @@ class DominoConfig(TaskConfig):
     """
 
     type: Literal["domino"] = "domino"
+    PARAMETER_PATHS: ClassVar[dict[str, str]] = {"mass": "mass"}
     mass: quantity(MIN_BLOCK_MASS_KG, MAX_BLOCK_MASS_KG, "kg")
     width: quantity(0.02, 2.0, "m") = 0.15
     height: quantity(0.1, 5.0, "m") = 1.6

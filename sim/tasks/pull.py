@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from functools import cached_property
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
@@ -68,6 +68,7 @@ class PullConfig(TaskConfig):
     are the character's (the example specs carry them)."""
 
     type: Literal["pull"] = "pull"
+    PARAMETER_PATHS: ClassVar[dict[str, str]] = {"mass": "mass", "chain_mass": "chain.mass"}
     mass: quantity(MIN_BOX_MASS_KG, MAX_BOX_MASS_KG, "kg")
     chain: Chain = Chain()
     width: quantity(0.05, 2.0, "m") = 0.5

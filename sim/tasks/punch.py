@@ -28,7 +28,7 @@ can no longer meet the bag, and the anticipation made for its impact has nothing
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import Field
 
@@ -81,6 +81,9 @@ class PunchConfig(TaskConfig):
     rope, links}` (module docstring)."""
 
     type: Literal["punch"] = "punch"
+    PARAMETER_PATHS: ClassVar[dict[str, str]] = {
+        "mass": "mass", "distance": "distance", "height": "height",
+        "punch_delay": "punches.0.delay"}
     guard: Annotated[list[Guard], Field(min_length=1, max_length=MAX_MOTIONS)]
     punches: Annotated[list[Strike], Field(min_length=1, max_length=MAX_MOTIONS)]
     retract: Strike | None = None

@@ -49,6 +49,12 @@ class PushConfig(TaskConfig):
     def parameters(self) -> dict[str, float]:
         return {"force": self.signed_force}
 
+    def parameter_updates(self, key: str, value: float) -> dict[str, Any]:
+        if key != "force":
+            raise KeyError(key)
+        # the library's force is signed: its sign is the push's direction
+        return {"force": abs(value), "direction": "forward" if value >= 0 else "backward"}
+
     def build(self, spec: Any, character: Any) -> Task:
         return PushTask(spec, character)
 

@@ -21,7 +21,7 @@ from sim.trajectory import MotionDef
 MAX_MOTIONS = 32
 
 
-class Motion(StrictModel):
+class SequenceMotion(StrictModel):
     """A pose change: ease-in-ease-out from the current target to `target` over `duration`.
 
     `target` maps hinge names to angles in degrees relative to the standing pose; joints not
@@ -39,7 +39,7 @@ class SequenceConfig(TaskConfig):
     """`task: {type: sequence, motions: [{start, duration, target, cmrt?}, ...]}`."""
 
     type: Literal["sequence"] = "sequence"
-    motions: Annotated[list[Motion], Field(min_length=1, max_length=MAX_MOTIONS)]
+    motions: Annotated[list[SequenceMotion], Field(min_length=1, max_length=MAX_MOTIONS)]
 
     def check(self, spec: Any, character: Any) -> None:
         for i, m in enumerate(self.motions):

@@ -25,7 +25,7 @@ reach the character only through ODE's contacts with the character's contact geo
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 from pydantic import Field
 
@@ -89,6 +89,9 @@ class Motion(StrictModel):
 class TireConfig(TaskConfig):
     """Fields shared by `tire_hit` and `tire_dodge` (module docstring)."""
 
+    PARAMETER_PATHS: ClassVar[dict[str, str]] = {
+        "mass": "tire.mass", "speed": "launch.toward", "vertical": "launch.vertical",
+        "height": "launch.height"}
     tire: Tire = Tire()
     launch: Launch
     motions: Annotated[list[Motion], Field(max_length=MAX_MOTIONS)] = []

@@ -1,6 +1,7 @@
 """The layers: `application` (the service's use cases) imports no web or queue code and nothing
 of `service/` or `worker/`; the API's routers and the workers import it, and every project
-import of those packages is at module top (none inside a function to dodge an import cycle)."""
+import of those packages is at module top (none inside a function to dodge an import cycle).
+No project module imports another in a circle, and nothing but `cli/` imports `cli/`."""
 
 from __future__ import annotations
 
@@ -52,3 +53,47 @@ def test_the_routers_and_workers_use_the_application_layer():
     for name in ("jobs", "families", "bases", "cmrts"):
         text = (ROOT / "service" / "routers" / f"{name}.py").read_text()
         assert "from application" in text and "from worker" not in text, name
+
+
+def _project_imports() -> dict[str, set[str]]:
+    """Each project module -> the project modules it imports (at module top or in a function)."""
+    paths = {}
+    for pkg in PROJECT:
+        for p in (ROOT / pkg).rglob("*.py"):
+            name = ".".join(p.relative_to(ROOT).with_suffix("").parts)
+            paths[name.removesuffix(".__init__")] = p
+    graph = {}
+    for name, p in paths.items():
+        deps = set()
+        for node in ast.walk(ast.parse(p.read_text())):
+            targets = []
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                targets = [node.module, *(f"{node.module}.{a.name}" for a in node.names)]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            deps |= {t for t in targets if t in paths and t != name}
+        graph[name] = deps
+    return graph
+
+
+def test_no_import_circle_between_project_modules():
+    graph = _project_imports()
+    circles = []
+    for start in graph:  # a depth-first walk from each module back to itself
+        stack, seen = [(start, (start,))], set()
+        while stack:
+            mod, path = stack.pop()
+            for dep in graph[mod]:
+                if dep == start:
+                    circles.append(" -> ".join((*path, start)))
+                elif dep not in seen:
+                    seen.add(dep)
+                    stack.append((dep, (*path, dep)))
+    assert circles == []
+
+
+def test_nothing_outside_the_command_line_imports_it():
+    """`python -m service` / `python -m worker` run their package's command, not `cli/`."""
+    graph = _project_imports()
+    assert sorted(m for m, deps in graph.items() if not m.startswith("cli")
+                  and any(d == "cli" or d.startswith("cli.") for d in deps)) == []

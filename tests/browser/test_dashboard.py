@@ -130,6 +130,21 @@ def test_library_page(server, page):
     page.check("#extrapolate")
     _wait(page, "document.getElementById('interp-note').textContent.includes('(extrapolated)')")
     assert page.locator("#interp-plot canvas").count() == 1
+    page.uncheck("#extrapolate")
+    page.fill("#at", "0.45")
+    _wait(page, "document.getElementById('interp-answer').textContent"
+                ".includes('not simulated')")
+    answer = page.locator("#interp-answer").text_content()
+    assert answer.startswith("source: interpolated (2 members)"), answer
+    page.click("#verify")  # simulated once in the API's pool, then kept by the library
+    _wait(page, "!['', 'unverified'].includes("
+                "document.getElementById('interp-answer').dataset.verdict)",
+          timeout_ms=120_000)
+    verified = page.locator("#interp-answer").text_content()
+    assert "verdict: " in verified and "(simulated now)" in verified, verified
+    page.click("#verify")
+    _wait(page, "document.getElementById('interp-answer').textContent"
+                ".includes('(kept by the library)')")
     basis = page.locator(f".basis[data-id='{server.ids['basis']}']")
     assert basis.locator("ul.members li").count() == 3
     assert re.match(r"\d+\.\d %", basis.locator("tbody tr td:nth-child(2)").first.text_content())

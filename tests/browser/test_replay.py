@@ -119,7 +119,7 @@ def test_served_replay_runs_under_its_csp_header(page, tmp_path):
     settings = Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/t.db", workers=1)
     spec = {"name": "quiet", "clip": {"preparation": 0.2, "duration": 0.2, "decay": 0.2},
             "task": {"type": "quiet_stance"}}
-    with TestClient(create_app(settings, run_drivers=False)) as c:
+    with TestClient(create_app(settings, run_drivers=False), base_url="http://localhost") as c:
         r = c.post("/simulations/replay", json={"spec": spec})
     assert r.status_code == 200, r.text
     csp = r.headers["content-security-policy"]

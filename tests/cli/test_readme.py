@@ -182,6 +182,20 @@ def test_make_targets_resolve(scratch):
                 assert target == "test" or "cmrt optimize" in p.stdout
 
 
+def _family_members(d: Path, pattern: str) -> None:
+    """The result files `pattern` names (the README's `pca` and `interpolate` lines read the
+    members `cmrt family run` saved), made by the README's family command as shown (its first
+    form) when there are none yet."""
+    if list(d.glob(pattern)):
+        return
+    family = next(_strip_comment(c) for c in readme_commands()
+                  if c.startswith(".venv/bin/cmrt family run"))
+    out = d / re.search(r"--out (\S+)", family).group(1)
+    shutil.rmtree(out.with_suffix(".runs"), ignore_errors=True)
+    _run(_expand_optional(family)[0], d)
+    assert len(list(d.glob(pattern))) >= 3, sorted(p.name for p in d.rglob("*.json"))
+
+
 def test_cli_block(scratch):
     d = scratch
     shutil.copy(d / "results" / "bend_0.5.json", d / "RESULT.json")
@@ -191,10 +205,14 @@ def test_cli_block(scratch):
     lines = sorted((c for c in lines if c.split()[1] in order),
                    key=lambda c: order.index(c.split()[1]))
     ran = []
+    pca = next(c for c in lines if c.split()[1] == "pca")
     for line in lines:
+        if line.split()[1] in ("pca", "interpolate"):  # the family run's members, as shown
+            _family_members(d, line.split()[2])
         for form in _expand_optional(line):
             if "--basis BASIS.json" in form and not (d / "BASIS.json").exists():
-                _run(".venv/bin/cmrt pca results/bend_*.json --k 3 --out BASIS.json", d)
+                _family_members(d, pca.split()[2])
+                _run(pca.replace("--out bend_basis.json", "--out BASIS.json"), d)
             if "--warm-start R.json" in form:
                 shutil.copy(d / "fast.json", d / "R.json")
             p = _run(form, d)
@@ -343,7 +361,7 @@ def test_client_commands(scratch, tmp_path):
              or c.split()[:3] in ([".venv/bin/cmrt", "family", w]
                                   for w in ("submit", "show", "watch"))]
     assert [c.split()[1] for c in lines] == ["submit", "jobs", "watch", "library", "library",
-                                             "family", "family", "family"]
+                                             "library", "library", "family", "family", "family"]
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
     env = _env(CMRT_API_PORT=str(port), CMRT_DATA_DIR=str(tmp_path / "data"), CMRT_WORKERS="1")
@@ -374,10 +392,16 @@ def test_client_commands(scratch, tmp_path):
         assert f"job {job} stopped" in watched
         listed = next(v for k, v in out.items() if k.endswith("duration=0.3"))
         assert "duration=0.3" in listed and "duration=0.7" not in listed
-        interp = next(v for k, v in out.items() if k.endswith("duration=0.5"))
-        lo, hi = sorted(n["task_parameters"]["duration"]
-                        for n in json.loads(interp)["neighbours"])
+        interp = json.loads(next(v for k, v in out.items() if k.endswith("duration=0.5 --json")))
+        lo, hi = sorted(n["task_parameters"]["duration"] for n in interp["neighbours"])
         assert lo < 0.5 < hi  # 0.4 (fast_bend) or 0.3, and 0.7
+        assert interp["source"] in ("interpolated", "member") and interp["members"]
+        verified = next(v for k, v in out.items() if k.endswith("duration=0.5 --verify"))
+        assert "simulated" in verified and "verdict" in verified
+        assert json.loads((scratch / "answer.json").read_text())["knot_times"]
+        refined = next(v for k, v in out.items() if k.split()[1:3] == ["library", "refine"]
+                       and k.endswith("--wait"))
+        assert "refinement job" in refined and "library CMRT " in refined
         grown = next(v for k, v in out.items() if k.split()[1:3] == ["family", "submit"])
         assert f"family {family} done" in grown and "| duration |" in grown
         shown = json.loads(next(v for k, v in out.items() if k.endswith(f"{family} --json")))

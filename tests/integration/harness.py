@@ -10,8 +10,9 @@ compose (`ComposeTopology`): `docker compose` runs the file itself, as a private
   a free port. A service replica is a container: `kill9` is `docker kill -s KILL`, a restart is
   `docker compose up -d --no-recreate`, Redis is wiped by removing its volume, and the database
   sessions are terminated through `psql` in the postgres container. `stop_all` is
-  `docker compose down -v`. This mode needs an engine, which the development machine has not:
-  its command lines are checked against a fake `docker` in test_harness.py, never run here.
+  `docker compose down -v`. This mode needs an engine (`make test-compose` installs and starts
+  one, scripts/docker-engine.sh); test_harness.py also checks its command lines against a fake
+  `docker`, so that `make test` covers them on a machine without an engine.
 local (`LocalTopology`): each application service's own `command` and `environment` from the
   compose file run as local processes (in their own process group, so `kill -9` takes the whole
   service like a container dying), against:

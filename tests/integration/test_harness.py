@@ -1,4 +1,5 @@
-"""The harness' compose mode against a fake `docker` (no engine on the development machine).
+"""The harness' compose mode against a fake `docker`, so that `make test` checks it on any
+machine (`make test-compose` runs the same mode against a real engine).
 
 The fake keeps containers in a JSON file and answers the few commands the harness uses, the
 way docker compose does: `up --scale svc=N` starts stopped replicas before creating new ones,

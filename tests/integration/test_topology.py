@@ -202,10 +202,10 @@ def test_redis_restarted_mid_job(api, topology):
     t0 = time.monotonic()
     job = wait_job(api, job_id, 150)
     print(f"\n[redis restart] job {job['status']} {time.monotonic() - t0:.1f} s after restart")
-    if job["status"] == "failed":  # allowed only with a clear reason
-        assert "broker" in job["error"]
-    else:
-        _check_complete(api, job_id, "Redis restart")
+    # a broker that comes back within CMRT_BROKER_DEADLINE costs nothing: the driver sends
+    # again what the wiped queue lost, the job ends as the uninterrupted run does
+    _, book = _check_complete(api, job_id, "Redis restart")
+    assert book["repeated"] <= 6
     assert api.get("/health").json()["broker"] == "ok"
 
 
@@ -226,6 +226,22 @@ def test_database_connections_dropped_mid_job(api, topology):
     assert book["repeated"] <= 6
     assert task_failures() == failures, "an evaluation task failed on the lost connection"
     assert api.get("/health").json()["database"] == "ok"
+
+
+def test_the_api_answers_the_compose_names_and_refuses_a_rebound_host(api):
+    """The api service as docker-compose.yml configures it (CMRT_ALLOWED_HOSTS=api): the
+    name other containers use and loopback are answered; a page whose DNS name was rebound to
+    the API's address is refused before any route runs, reads and writes alike."""
+    for host in ("api:8000", "127.0.0.1:8000", "localhost"):
+        assert api.get("/jobs", headers={"host": host}).status_code == 200, host
+    rebound = {"host": "evil.example:8000", "origin": "http://evil.example:8000",
+               "sec-fetch-site": "same-origin"}
+    total = api.get("/jobs").json()["total"]
+    for r in (api.get("/jobs", headers=rebound),
+              api.post("/jobs", json={"spec": bend("it_rebound")}, headers=rebound),
+              api.post("/bases", json={"family": "it_bend", "k": 1}, headers=rebound)):
+        assert r.status_code == 400 and r.json()["detail"].startswith("host: "), r.text
+    assert api.get("/jobs").json()["total"] == total
 
 
 def test_bad_input_gets_4xx_and_stores_nothing(api):
@@ -271,10 +287,10 @@ def test_worker_link_cut_mid_generation_then_restored(api, topology):
     """Partition drill: the worker host's link is cut while generation 1 is half done (its
     candidate 0 held open by the delay hook, so a worker is mid-evaluation), kept cut for
     PARTITION_S, then restored. The job completes with every evaluation stored once (none
-    lost, none failed) within RECOVERY_LIMIT_S of the restore, or fails with an error naming
-    the cause; it never hangs. Every worker answers a broadcast ping again (Celery reconnected
-    by itself). Prints the bookkeeping, the timings and what the workers and the driver
-    logged."""
+    lost, none failed) within RECOVERY_LIMIT_S of the restore, its result equal to the
+    uninterrupted run's; it never hangs and never fails. Every worker answers a broadcast
+    ping again (Celery reconnected by itself). Prints the bookkeeping, the timings and what
+    the workers and the driver logged."""
     if topology.worker_link_unavailable:
         pytest.skip(f"partition drill: {topology.worker_link_unavailable}")
     workers = [p for p in topology.procs["worker"] if p.alive]
@@ -332,9 +348,8 @@ def test_worker_link_cut_mid_generation_then_restored(api, topology):
     print("--- driver since the cut:\n" + "\n".join(
         ln for ln in driver_log.splitlines() if "HTTP/1.1" not in ln)[-2000:])
     assert during[0] == during[-1] == max(during), f"results stored through a cut link: {during}"
-    if job["status"] == "failed":  # allowed only with a clear reason
-        assert any(k in job["error"] for k in ("broker", "database", "unreachable")), job
-    else:
-        _, book = _check_complete(api, job_id, "worker link cut and restored")
-        assert book["repeated"] <= 6
+    # the link comes back: nothing lost, nothing failed, the uninterrupted run's result
+    assert job["status"] in ("converged", "stopped"), job
+    _, book = _check_complete(api, job_id, "worker link cut and restored")
+    assert book["repeated"] <= 6
     assert t_ping is not None, f"workers answering after the restore: {answering}"

@@ -4,6 +4,7 @@ synthetic objective (optim.synthetic; fakes only here, never in the integration 
 from __future__ import annotations
 
 import pytest
+from svc_helpers import LOCAL
 
 from cmrt.settings import Settings
 from optim.executors import SerialExecutor
@@ -45,7 +46,7 @@ def http_client(config, repo, local_executor):
     from service.app import create_app
 
     with TestClient(create_app(config, repo=repo, executor=local_executor,
-                               run_drivers=False)) as c:
+                               run_drivers=False), base_url=LOCAL) as c:
         yield c
 
 
@@ -58,5 +59,6 @@ def client(config, repo, local_executor):
 
     from service.app import create_app
 
-    with TestClient(create_app(config, repo=repo, executor=local_executor)) as c:
+    with TestClient(create_app(config, repo=repo, executor=local_executor),
+                    base_url=LOCAL) as c:
         yield c

@@ -23,7 +23,7 @@ import uvicorn
 from fastapi.testclient import TestClient
 
 sys.path.insert(0, str(Path(__file__).parent))
-from svc_helpers import bend_spec  # noqa: E402
+from svc_helpers import LOCAL, bend_spec  # noqa: E402
 
 from cmrt.settings import Settings  # noqa: E402
 from optim.executors import SerialExecutor  # noqa: E402
@@ -56,7 +56,7 @@ def seed_library(settings: Settings) -> dict[str, str]:
     executor = LocalPoolExecutor(config, pool=SerialExecutor(),
                                  objective_factory=lambda spec: Sphere(centre=0.3))
     with TestClient(create_app(config, repo=repo, executor=executor),
-                    headers=_auth(settings)) as c:
+                    headers=_auth(settings), base_url=LOCAL) as c:
         jobs = [c.post("/jobs", json=bend_spec(f"bend_{i}", d)).json()["id"]
                 for i, d in enumerate((0.3, 0.4, 0.5))]
         deadline = time.monotonic() + 60
@@ -92,7 +92,7 @@ def main(data_dir: str, port: int, drivers: bool = False) -> None:
     # a job for the cancel operation: left queued (drivers off), or one that runs for minutes
     # (700 evaluations, no early-stopping threshold) when the drivers are on
     job = {**JOB_EXAMPLE, "optimize": {"max_evaluations": 700}}
-    client = TestClient(app, headers=_auth(settings))
+    client = TestClient(app, headers=_auth(settings), base_url=LOCAL)
     ids["queued_job_id"] = client.post("/jobs", json=job).json()["id"]
     # a family for the cancel operation: left running (drivers off; with them on it runs as
     # the seeded one did, its members simulated this time)

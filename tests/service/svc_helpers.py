@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import time
 
+#: The base URL of in-process test clients: a loopback name, as a local user's (Starlette's
+#: default `testserver` is no name the API answers to, service.security).
+LOCAL = "http://localhost"
 TERMINAL = ("converged", "stopped", "failed", "cancelled")
 #: A short real clip for what-if simulations and replays.
 QUIET = {"name": "quiet", "family": "stand",

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from svc_helpers import TERMINAL
+from svc_helpers import LOCAL, TERMINAL
 
 from service.app import create_app
 from sim.spec import load_spec, numeric_fields
@@ -68,7 +68,7 @@ def _run_jobs(config, repo, bodies: list[dict[str, Any]]) -> list[dict[str, Any]
 
     app, executor = _real_app(config, repo)
     out = []
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         ids = []
         for body in bodies:
             body = {**body, "optimize": {**body.get("optimize", {}), **TINY_BUDGET}}

@@ -8,7 +8,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import pytest
 from fastapi.testclient import TestClient
-from svc_helpers import bend_spec
+from svc_helpers import LOCAL, bend_spec
 
 from cmrt.settings import Settings
 from service import links
@@ -22,14 +22,15 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 @pytest.fixture
 def closed(config, repo, local_executor):
     s = config.model_copy(update={"api_token": Settings(api_token=TOKEN).api_token})
-    with TestClient(create_app(s, repo=repo, executor=local_executor, run_drivers=False)) as c:
+    with TestClient(create_app(s, repo=repo, executor=local_executor, run_drivers=False),
+                    base_url=LOCAL) as c:
         yield c
 
 
 @pytest.fixture
 def open_(config, repo, local_executor):
     with TestClient(create_app(config, repo=repo, executor=local_executor,
-                               run_drivers=False)) as c:
+                               run_drivers=False), base_url=LOCAL) as c:
         yield c
 
 

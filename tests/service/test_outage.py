@@ -18,7 +18,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
-from svc_helpers import bend_spec, wait_job
+from svc_helpers import LOCAL, bend_spec, wait_job
 
 from service.app import create_app
 from store import open_repository
@@ -66,7 +66,7 @@ def test_a_database_outage_answers_503_json_and_writes_nothing(pg_database, conf
     settings = config.model_copy(update={"database_url": url})
     repo = open_repository(url)
     app = create_app(settings, repo=repo, executor=local_executor)  # drivers on
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         done = c.post("/jobs", json=bend_spec("before")).json()["id"]
         job = wait_job(c, done)
         cmrt = job["cmrt_id"]

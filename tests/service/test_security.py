@@ -8,18 +8,20 @@ import re
 
 import pytest
 from fastapi.testclient import TestClient
-from svc_helpers import bend_spec
+from svc_helpers import LOCAL, bend_spec
 
 from cmrt.settings import Settings
+from service import security
 from service.app import create_app
-from service.security import PAGE_CSP
+from service.security import PAGE_CSP, allowed_hosts, host_allowed, host_warning
 
 TOKEN = "s3cret-token"
 
 
 def _client(settings, repo, executor, config, **overrides):
     s = config.model_copy(update=overrides)
-    return TestClient(create_app(s, repo=repo, executor=executor, run_drivers=False))
+    return TestClient(create_app(s, repo=repo, executor=executor, run_drivers=False),
+                      base_url=LOCAL)
 
 
 @pytest.fixture
@@ -119,8 +121,8 @@ def test_cross_site_state_change_is_refused(open_client):
 @pytest.mark.parametrize("headers", [
     {"sec-fetch-site": "same-site", "origin": "http://127.0.0.1:9999"},
     {"origin": "http://127.0.0.1:9999"},  # a browser without Sec-Fetch-* headers
-    {"origin": "http://testserver:8001"},  # the same host, another port
-    {"origin": "https://testserver"},  # another scheme
+    {"origin": "http://localhost:8001"},  # the same host, another port
+    {"origin": "https://localhost"},  # another scheme
     {"origin": "null"},  # a sandboxed frame, a file: page
     {"sec-fetch-site": "same-site"},
 ])
@@ -140,12 +142,13 @@ def test_another_origin_cannot_change_state(open_client, headers):
 
 def test_the_own_origin_changes_state(settings, config, repo, local_executor, open_client):
     job = open_client.post("/jobs", json=bend_spec(),
-                           headers={"origin": "http://testserver",
+                           headers={"origin": "http://localhost",
                                     "sec-fetch-site": "same-origin"}).json()["id"]
     assert open_client.post(f"/jobs/{job}/cancel",
-                            headers={"origin": "http://testserver"}).status_code == 202
-    # Behind a proxy the public URL's origin is the service's own, whatever the Host says.
-    with _client(settings, repo, local_executor, config,
+                            headers={"origin": "http://localhost"}).status_code == 202
+    # Behind a proxy the public URL's origin is the service's own, whatever (allowed) name the
+    # proxy puts in Host.
+    with _client(settings, repo, local_executor, config, allowed_hosts=["10.0.0.5"],
                  public_url="https://cmrt.example/api") as c:
         assert c.post("/jobs", json=bend_spec("b"), headers={
             "origin": "https://cmrt.example", "host": "10.0.0.5:8000"}).status_code == 202
@@ -189,23 +192,24 @@ def test_a_404_quotes_the_id_it_echoes(open_client):
     assert open_client.get("/cmrts/%FF").json()["detail"] == "CMRT '\\ufffd' not found"
 
 
-def test_no_host_header_reflection(open_client):
-    evil = {"host": "evil.example:666"}
-    r = open_client.post("/jobs", json=bend_spec(), headers=evil)
-    job = r.json()["id"]
-    assert r.headers["location"] == f"/jobs/{job}" and r.json()["url"] == f"/jobs/{job}"
-    for resp in (open_client.get(f"/jobs/{job}", headers=evil),
-                 open_client.get("/jobs", headers=evil),
-                 open_client.get("/", headers=evil),
-                 open_client.post(f"/jobs/{job}/cancel", headers=evil)):
-        assert "evil" not in resp.text, resp.text
-    assert open_client.get("/", headers=evil).json()["jobs"] == "/jobs"
+def test_no_host_header_reflection(settings, config, repo, local_executor):
+    other = {"host": "other.example:666"}  # an allowed name, never echoed into URLs
+    with _client(settings, repo, local_executor, config, allowed_hosts=["other.example"]) as c:
+        r = c.post("/jobs", json=bend_spec(), headers=other)
+        job = r.json()["id"]
+        assert r.headers["location"] == f"/jobs/{job}" and r.json()["url"] == f"/jobs/{job}"
+        for resp in (c.get(f"/jobs/{job}", headers=other), c.get("/jobs", headers=other),
+                     c.get("/", headers=other), c.post(f"/jobs/{job}/cancel", headers=other)):
+            assert resp.status_code in (200, 202) and "other" not in resp.text, resp.text
+        assert c.get("/", headers=other).json()["jobs"] == "/jobs"
+        refused = c.get("/jobs", headers={"host": "evil.example:666"})
+        assert refused.status_code == 400 and "evil" not in refused.text, refused.text
 
 
 def test_public_url_is_the_base_of_returned_urls(settings, config, repo, local_executor):
     with _client(settings, repo, local_executor, config,
                  public_url="https://cmrt.example/api") as c:
-        r = c.post("/jobs", json=bend_spec(), headers={"host": "evil.example"})
+        r = c.post("/jobs", json=bend_spec(), headers={"host": "localhost:9"})
         job = r.json()["id"]
         assert r.headers["location"] == f"https://cmrt.example/api/jobs/{job}"
         assert c.get(f"/jobs/{job}").json()["links"]["cancel"] == \
@@ -255,3 +259,107 @@ def test_docs_are_served_from_the_project(open_client):
         r = open_client.get(src)
         assert r.status_code == 200 and len(r.content) > 0, src
     assert "SwaggerUIBundle" in open_client.get("/static/docs.js").text
+
+
+# ---- DNS rebinding: the Host allowlist ---------------------------------------------------
+#: What a page of evil.example sends once its name resolves to this machine: to the browser
+#: the API is then same-origin, so only the Host header tells the request apart.
+REBOUND = {"host": "evil.example:8000", "origin": "http://evil.example:8000",
+           "sec-fetch-site": "same-origin"}
+HOST_REFUSED = ("host: the Host header names no host of this service (loopback, the bind "
+                "address, CMRT_PUBLIC_URL's host or CMRT_ALLOWED_HOSTS); a page whose name was "
+                "rebound to this address is refused")
+
+
+def _refused(r):
+    assert r.status_code == 400, r.text
+    assert r.headers["content-type"] == "application/json"
+    assert r.json() == {"detail": HOST_REFUSED}  # a reason and no data
+
+
+def test_a_rebound_page_reads_and_writes_nothing(open_client, repo):
+    job = open_client.post("/jobs", json=bend_spec()).json()["id"]
+    _refused(open_client.get("/jobs", headers=REBOUND))
+    _refused(open_client.get(f"/jobs/{job}", headers=REBOUND))
+    _refused(open_client.get("/cmrts", headers=REBOUND))
+    _refused(open_client.post("/bases", json={"family": "bend", "k": 1}, headers=REBOUND))
+    _refused(open_client.post("/jobs", json=bend_spec("rebound"), headers=REBOUND))
+    _refused(open_client.post(f"/jobs/{job}/cancel", headers=REBOUND))
+    _refused(open_client.options("/jobs", headers=REBOUND))
+    _refused(open_client.get("/health", headers=REBOUND))
+    head = open_client.head("/jobs", headers=REBOUND)
+    assert head.status_code == 400 and head.content == b""
+    assert repo.list_jobs()[1] == 1 and repo.list_bases(None)[1] == 0
+    assert open_client.get(f"/jobs/{job}").json()["cancel_requested"] is False
+
+
+@pytest.mark.parametrize("host", ["localhost", "localhost:8000", "LOCALHOST:1", "127.0.0.1",
+                                  "127.0.0.1:8000", "127.3.2.1:80", "[::1]", "[::1]:8000",
+                                  "localhost.:8000"])
+def test_loopback_names_are_answered(open_client, host):
+    origin = f"http://{host}"
+    same = {"host": host, "origin": origin, "sec-fetch-site": "same-origin"}
+    assert open_client.get("/jobs", headers=same).status_code == 200
+    r = open_client.post("/jobs", json=bend_spec(), headers=same)  # the dashboard's request
+    assert r.status_code == 202, r.text
+
+
+@pytest.mark.parametrize("host", ["evil.example", "evil.example:8000", "localhost.evil.example",
+                                  "127.0.0.1.evil.example", "10.0.0.5:8000", "[::2]:8000",
+                                  "a b", "localhost:notaport", "user@localhost", "localhost/x",
+                                  ""])
+def test_other_hosts_are_refused(open_client, host):
+    _refused(open_client.get("/jobs", headers={"host": host}))
+
+
+def test_configured_names_are_answered(settings, config, repo, local_executor):
+    with _client(settings, repo, local_executor, config, public_url="https://cmrt.example/api",
+                 allowed_hosts=Settings(allowed_hosts="cmrt.lan, API ,[fd00::5]").allowed_hosts,
+                 api_host="10.0.0.7") as c:
+        for host in ("cmrt.example", "CMRT.example:443", "cmrt.lan:8000", "api:8000",
+                     "[fd00::5]:8000", "10.0.0.7:8000", "localhost:8000"):
+            assert c.get("/jobs", headers={"host": host}).status_code == 200, host
+        origin = {"host": "api:8000", "origin": "http://api:8000",
+                  "sec-fetch-site": "same-origin"}
+        assert c.post("/jobs", json=bend_spec(), headers=origin).status_code == 202
+        for host in ("evil.example", "cmrt.example.evil", "lan", "10.0.0.8"):
+            _refused(c.get("/jobs", headers={"host": host}))
+    with _client(settings, repo, local_executor, config, allowed_hosts=["*"]) as c:
+        assert c.get("/jobs", headers=REBOUND).status_code == 200  # the check is off
+
+
+def test_allowed_hosts_setting(monkeypatch):
+    monkeypatch.setenv("CMRT_ALLOWED_HOSTS", " cmrt.lan,API, [::5] ,,")
+    assert Settings().allowed_hosts == ["cmrt.lan", "api", "::5"]
+    for bad in ("http://cmrt.lan", "cmrt.lan:8000", "cmrt.lan/x", "[::1]:80", "a b"):
+        monkeypatch.setenv("CMRT_ALLOWED_HOSTS", bad)
+        with pytest.raises(ValueError, match="allowed_hosts") as err:
+            Settings()
+        assert "is not a host name or address" in str(err.value)
+
+
+def test_a_wildcard_bind_without_names_warns():
+    assert host_warning(Settings(api_host="0.0.0.0")).startswith("bound to every interface")
+    assert host_warning(Settings(api_host="::")) is not None
+    assert host_warning(Settings(api_host="0.0.0.0", allowed_hosts=["cmrt.lan"])) is None
+    assert host_warning(Settings(api_host="0.0.0.0", public_url="https://cmrt.example")) is None
+    assert host_warning(Settings()) is None  # loopback bind: loopback names suffice
+    assert host_allowed(None, allowed_hosts(Settings()))  # HTTP/1.0 without Host: no browser
+
+
+def test_allow_sets_are_remembered_per_path_within_a_bound(config, repo, local_executor,
+                                                           monkeypatch):
+    """The edge remembers each path's Allow set (the routes are fixed) and forgets the oldest
+    paths past ALLOW_MEMO_PATHS: the same answers as probing the routes, bounded memory."""
+    monkeypatch.setattr(security, "ALLOW_MEMO_PATHS", 4)
+    app = create_app(config, repo=repo, executor=local_executor, run_drivers=False)
+    edge = security.HttpEdge(app, app=app, settings=config)
+    paths = ["/health", "/jobs", *(f"/jobs/j{i}" for i in range(6)), "/jobs/j0/cancel", "/nope",
+             "/health", "/cmrts/interpolate"]
+    for path in paths:
+        scope = {"type": "http", "path": path, "root_path": "", "method": "GET"}
+        assert edge.allowed(scope) == security.allowed_methods(app, scope), path
+        assert len(edge._allow) <= 4
+    assert edge.allowed({"type": "http", "path": "/jobs/j5", "root_path": "",
+                         "method": "GET"}) == ["GET", "HEAD", "OPTIONS"]
+    assert edge.allowed({"type": "http", "path": "/nope", "root_path": "", "method": "GET"}) == []

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 from fastapi.testclient import TestClient
-from svc_helpers import QUIET, bend_spec, wait_job
+from svc_helpers import LOCAL, QUIET, bend_spec, wait_job
 
 from service.app import create_app
 
@@ -99,7 +99,7 @@ def test_job_without_best_yet(http_client, repo):
 def test_time_limit_is_a_failed_status(settings, config, repo, local_executor):
     s = config.model_copy(update={"eval_time_limit": 0.05})
     with TestClient(create_app(s, repo=repo, executor=local_executor,
-                               run_drivers=False)) as c:
+                               run_drivers=False), base_url=LOCAL) as c:
         long = {**QUIET, "clip": {"preparation": 1.0, "duration": 5.0, "decay": 1.0}}
         r = c.post("/simulations", json={"spec": long})
         out = r.json()

@@ -6,7 +6,10 @@ import threading
 from datetime import UTC
 
 import pytest
+from sqlalchemy import text
+from sqlalchemy.exc import OperationalError
 
+from store import open_repository
 from store.errors import Conflict, InvalidTransition, NotFound
 from store.records import JOB_STATUSES, TERMINAL_STATUSES, TRANSITIONS
 from store.repository import SqlRepository
@@ -41,6 +44,18 @@ def test_spec_is_stored_with_the_hash_of_its_canonical_text(repo: SqlRepository)
     assert repo.get_job(given.id).spec_hash == "a" * 64
     fam = repo.create_family({"spec": SPEC, "values": [0.3]}, family="bend", param="clip.x")
     assert repo.get_family(fam.id).spec_hash == document_hash({"spec": SPEC, "values": [0.3]})
+
+
+def test_ping_reads_the_jobs_table(repo: SqlRepository, tmp_path) -> None:
+    repo.ping()  # no job: still fine
+    new_job(repo)
+    repo.ping()
+    gone = open_repository(f"sqlite:///{tmp_path}/gone.db")
+    with gone.engine.begin() as conn:  # the schema lost: the ping says so
+        conn.execute(text("DROP TABLE jobs"))
+    with pytest.raises(OperationalError, match="no such table"):
+        gone.ping()
+    gone.engine.dispose()
 
 
 def test_unknown_job_is_not_found(repo: SqlRepository) -> None:

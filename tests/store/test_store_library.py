@@ -192,3 +192,23 @@ def test_basis_shape_is_checked(repo: SqlRepository) -> None:
             family="push", k=1, mean=[0.0, 0.0], components=[[1.0]],
             variance_explained=[1.0], members=[],
         )  # fmt: skip
+
+
+def test_verification_first_stored_wins(repo: SqlRepository) -> None:
+    assert repo.get_verification("s" * 64, "p" * 64) is None
+    first = repo.add_verification(
+        family="domino", spec_hash="s" * 64, params_hash="p" * 64, source="interpolated",
+        members=["a", "b"], outcome={"status": "done", "objective": 1.25, "fell": False,
+                                     "fall_direction": None, "task_success": True})
+    assert first.source == "interpolated" and first.members == ["a", "b"]
+    assert first.outcome["objective"] == 1.25 and first.outcome["task_success"] is True
+    # a second outcome for the same (spec, CMRT): the first is kept and given back
+    again = repo.add_verification(
+        family="domino", spec_hash="s" * 64, params_hash="p" * 64, source="member",
+        members=["a"], outcome={"status": "done", "objective": 9.0, "fell": True})
+    assert again.id == first.id and again.outcome == first.outcome
+    assert repo.get_verification("s" * 64, "p" * 64).id == first.id
+    other = repo.add_verification(
+        family="domino", spec_hash="s" * 64, params_hash="q" * 64, source="member",
+        members=["a"], outcome={"status": "failed", "error": "diverged"})
+    assert other.id != first.id and other.outcome["status"] == "failed"

@@ -106,7 +106,28 @@
 
   function schedule() { clearTimeout(interpTimer); interpTimer = setTimeout(preview, DEBOUNCE_MS); }
 
-  async function preview() {
+  // What the answer is: its source and members, the neighbours' switch check, and once
+  // verified its simulated outcome and verdict (never a falling answer shown as good).
+  function answerText(out) {
+    const parts = [`source: ${out.source} (${out.members.length} member${out.members.length > 1 ? "s" : ""})`];
+    if (out.switch) {
+      parts.push(out.switch.detected
+        ? `strategy switch between the neighbours (${fmt(out.switch.distance, 3)} apart): not averaged`
+        : `one strategy (neighbours ${fmt(out.switch.distance, 3)} apart)`);
+    }
+    if (out.outcome) {
+      const o = out.outcome;
+      parts.push(`verdict: ${out.verdict.toUpperCase()} — objective ${fmt(o.objective, 4)}, ` +
+                 (o.fell ? `falls ${o.fall_direction || ""}` : "stands") +
+                 (o.task_success === false ? ", task failed" : o.task_success ? ", task done" : "") +
+                 (o.cached ? " (kept by the library)" : " (simulated now)"));
+    } else {
+      parts.push("not simulated (verify simulates it once)");
+    }
+    return parts.join("  ·  ") + "  —  " + out.message;
+  }
+
+  async function preview(verify) {
     const family = document.getElementById("family").value;
     const along = document.getElementById("along").value;
     const at = document.getElementById("at").value;
@@ -125,7 +146,11 @@
       return;
     }
     const q = {family, [along]: at, along,
-               extrapolate: document.getElementById("extrapolate").checked ? "true" : ""};
+               extrapolate: document.getElementById("extrapolate").checked ? "true" : "",
+               verify: verify === true ? "true" : ""};
+    const said = document.getElementById("interp-answer");
+    said.textContent = verify === true ? "simulating the answer…" : "";
+    said.dataset.verdict = "";
     for (const sel of document.querySelectorAll("#fixed select")) q[sel.dataset.key] = sel.value;
     const url = api("/cmrts/interpolate", q);
     const box = document.getElementById("interp-plot");
@@ -136,6 +161,9 @@
         : `weight ${fmt(out.weight, 3)} between ` +
           out.neighbours.map(n => `${along} = ${fmt(n[along], 5)}`).join(" and ")) +
         (out.extrapolated ? " (extrapolated)" : "") + `  —  GET ${url}`;
+      said.textContent = answerText(out);
+      said.dataset.verdict = out.verdict;
+      said.className = "small" + (["falls", "fails_task", "failed"].includes(out.verdict) ? " error" : "");
       CMRT.plot(box, {
         height: 280,
         scales: {x: {time: false}, y: {range: CMRT.minSpan(0.1)}},
@@ -228,6 +256,7 @@
         schedule();
       });
       document.getElementById("extrapolate").addEventListener("change", preview);
+      document.getElementById("verify").addEventListener("click", () => preview(true));
       document.getElementById("interp").addEventListener("submit", ev => { ev.preventDefault(); preview(); });
       await run(sel.value);
     } catch (e) {

@@ -1,0 +1,416 @@
+"""What the library serves at a task parameter, and what it can stand behind.
+
+An answer says what it is: its `source` (`member`: a CMRT the library holds, optimised at
+that value or served as it is at a neighbouring one; `interpolated`: the curve between the two
+neighbouring members; `refined`: a member a refinement job optimised at that value), the
+members it was built from, whether a strategy switch lies between them, and, once simulated
+(`verify`), its outcome on the spec of the query, kept in the library so that the next
+identical query costs nothing.
+
+The rules, in order:
+  * **no average across a switch**: two neighbours whose spline parameters lie further apart
+    than `SWITCH_DISTANCE` are two ways of doing the task; their average is neither, so the
+    nearer member is served instead and the answer says why;
+  * **verify**: the served CMRT is simulated on the spec at the query's value. An answer that
+    falls, fails its task or is weak (its objective more than `WEAK_MARGIN` above the library's
+    own prediction, the neighbours' objectives interpolated) is not served as good: the
+    neighbouring members are simulated there too (and, across a switch, their average: tried,
+    never served unsimulated) and the best that stands is served; when none stands the answer
+    says so plainly and offers a refinement;
+  * **refine** (`refine_job`): an optimisation in the family's PCA basis started at the best
+    answer, under a small budget; its result joins the library as a member of the family.
+
+Pure of the web and the queue: the service and the command line call it; the simulation is a
+callable handed in (the what-if process pool on the service).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from application import jobs
+from application.admission import default_popsize
+from application.library import SWITCH_DISTANCE, interpolate_library, params_distance
+from cmrt.canonical import text_hash
+from cmrt.settings import Settings
+from optim.errors import InterpolationError
+from optim.spline import CmrtSpline, encode, sample_curve
+from sim.errors import SpecError
+from sim.spec import CanonicalSpec, TaskSpec, parse_canonical, parse_spec
+from store import CmrtRecord, JobRecord, NotFound, Repository
+
+#: A verified answer whose objective exceeds the library's prediction (the neighbours'
+#: objectives interpolated at the value) by more than this fraction is weak: the neighbouring
+#: members are tried there too.
+WEAK_MARGIN = 0.05
+#: A refinement's stopping rules: at most `REFINE_MAX_EVALUATIONS` evaluations in whole
+#: generations (the paper's use of a basis: a new task instance in a few generations), ending
+#: earlier when the best improved less than `REFINE_IMPROVEMENT` over the last `REFINE_WINDOW`
+#: evaluations.
+REFINE_MAX_EVALUATIONS = 150
+REFINE_WINDOW = 35
+REFINE_IMPROVEMENT = 0.01
+#: A refinement's CMA-ES step in the basis's box (it starts at an answer, not from nothing).
+REFINE_SIGMA0 = 0.1
+#: What the library's sources are called in an answer.
+SOURCES = ("member", "interpolated", "refined")
+
+#: simulate(spec document, CMRT parameters) -> {"status": "done" | "failed", "objective",
+#: "fell", "fall_direction", "task_success", "cpu_seconds", "error"}.
+Simulate = Callable[[dict[str, Any], list[float]], dict[str, Any]]
+
+
+class AnswerError(ValueError):
+    """A query the library cannot answer; the message starts with the field it is about."""
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """A CMRT the library could serve at the query's value."""
+
+    source: str
+    members: list[CmrtRecord]
+    spline: CmrtSpline
+
+    @property
+    def ids(self) -> list[str]:
+        return [m.id for m in self.members]
+
+
+def library_parameter(repo: Repository, family: str, name: str) -> tuple[str, str | None]:
+    """The library key `name` means in `family` (`mass` as it is; a spec path such as
+    `task.mass` translated), and a note when it was translated. AnswerError naming `name`
+    when the family has no such parameter."""
+    keys = [k for k in repo.cmrt_keys(family) if k.has_spec]
+    if not keys:
+        raise AnswerError(f"family: no library CMRTs of family {family!r}")
+    if any(name in k.task_parameters for k in keys):
+        return name, None
+    spec = parse_spec(repo.get_cmrt(keys[0].id).spec, f"library CMRT {keys[0].id}")
+    try:
+        key = spec.library_key(name)
+    except ValueError as err:
+        raise AnswerError(f"{name}: {err}") from None
+    return key, f"{name} is the library parameter {key!r}"
+
+
+def serve(
+    repo: Repository,
+    family: str,
+    key: str,
+    value: float,
+    *,
+    filters: Mapping[str, float] | None = None,
+    extrapolate: bool = False,
+    simulate: Simulate | None = None,
+) -> dict[str, Any]:
+    """The library's answer at `key` = `value` (module docstring); simulated and checked
+    when `simulate` is given. InterpolationError when the library cannot interpolate there
+    (range, family, parameter); AnswerError for a spec the value makes invalid."""
+    base = interpolate_library(repo, family, key, value, filters=filters,
+                               extrapolate=extrapolate)
+    recs = [repo.get_cmrt(n["id"]) for n in base["neighbours"]]
+    switch = _switch(recs, key) if not base["exact"] and len(recs) == 2 else None
+    interp = _answer_spline(base)
+    near = _nearer(recs, key, value)
+    if base["exact"]:
+        primary = _Candidate(_member_source(repo, recs[0]), [recs[0]], _spline_of(recs[0]))
+        why = f"the library holds a CMRT optimised at {key} = {value:g}"
+    elif switch is not None and switch["detected"]:
+        primary = _Candidate("member", [near], _spline_of(near))
+        why = (f"a strategy switch lies between the members at {key} = "
+               f"{switch['between'][0][key]:g} and {switch['between'][1][key]:g} (their "
+               f"CMRTs are {switch['distance']:.2f} apart, above {SWITCH_DISTANCE:g}): the "
+               f"nearer member ({key} = {near.task_parameters[key]:g}) is served, not their "
+               "average")
+    else:
+        primary = _Candidate("interpolated", recs, interp)
+        why = (f"interpolated between the members at {key} = "
+               + " and ".join(f"{r.task_parameters[key]:g}" for r in recs))
+    out = {k: v for k, v in base.items() if k != "curve"}
+    out["interpolation"] = {k: base[k] for k in ("length", "knot_times", "values",
+                                                 "vertical_values")}
+    out.update(
+        predicted_objective=_predicted(base, recs),
+        switch=switch,
+        verified=False,
+        verdict="unverified",
+        outcome=None,
+        tried=[],
+    )
+    _set_candidate(out, primary)
+    if simulate is None:
+        out["message"] = why + "; not simulated (verify=true simulates it once)"
+        return out
+    spec = _spec_at(near, key, value, filters)
+    cands = [primary]
+    tried = [_verify(repo, family, spec, primary, simulate)]
+    if not _good(tried[0], out["predicted_objective"]):
+        # the neighbours as they are; across a switch also their average, which is never
+        # served unsimulated there but may, simulated, be the best the library has
+        others = [_Candidate("member", [r], _spline_of(r))
+                  for r in sorted(recs, key=lambda r: abs(r.task_parameters[key] - value))]
+        if primary.source != "interpolated" and not base["exact"] and len(recs) == 2:
+            others.append(_Candidate("interpolated", recs, interp))
+        for c in others:
+            if c.source == primary.source and c.ids == primary.ids:
+                continue
+            cands.append(c)
+            tried.append(_verify(repo, family, spec, c, simulate))
+    i = min(range(len(tried)), key=lambda j: _rank(tried[j]))
+    best = tried[i]
+    _set_candidate(out, cands[i])
+    out.update(verified=True, outcome=best["outcome"], tried=tried,
+               verdict=_verdict(best, out["predicted_objective"]))
+    out["message"] = _message(why, out, best, tried, key, value)
+    return out
+
+
+def refine_job(
+    repo: Repository,
+    settings: Settings,
+    family: str,
+    key: str,
+    value: float,
+    *,
+    filters: Mapping[str, float] | None = None,
+    basis_id: str | None = None,
+    max_evaluations: int = REFINE_MAX_EVALUATIONS,
+    seed: int = 0,
+    extrapolate: bool = False,
+) -> tuple[JobRecord, Any, dict[str, Any]]:
+    """Submit a refinement at `key` = `value`: a job searching the family's PCA basis (the
+    newest, or `basis_id`), started at the best answer the library has there (a verified one
+    when the library kept one), under `max_evaluations`. Its result joins the library as a
+    member. Returns the job, its admitted budget and the answer it started from. AnswerError
+    naming `basis` when the family has none; InterpolationError as `serve`."""
+    answer = serve(repo, family, key, value, filters=filters, extrapolate=extrapolate)
+    if basis_id is None:
+        bases, _ = repo.list_bases(family, limit=1)
+        if not bases:
+            raise AnswerError(
+                f"basis: family {family!r} has no PCA basis to refine in; build one first "
+                f"(POST /bases with {{\"family\": \"{family}\"}}, or `cmrt library basis --family "
+                f"{family}`)")
+        basis_id = bases[0].id
+    else:
+        try:
+            if repo.get_basis(basis_id).family != family:
+                raise AnswerError(f"basis: {basis_id!r} is not a basis of family {family!r}")
+        except NotFound:
+            raise AnswerError(f"basis: no basis {basis_id!r}") from None
+    recs = [repo.get_cmrt(n["id"]) for n in answer["neighbours"]]
+    spec = _spec_at(_nearer(recs, key, value), key, value, filters)
+    served = _Candidate(answer["source"], [r for r in recs if r.id in answer["members"]],
+                        _answer_spline(answer))
+    cands = [served] + [_Candidate("member", [r], _spline_of(r)) for r in recs]
+    if not answer["exact"] and len(recs) == 2:
+        cands.append(_Candidate("interpolated", recs, _answer_spline(answer["interpolation"])))
+    start_from = _best_cached(repo, spec, cands) or served
+    # Whole generations within the budget: CMA-ES stops between generations, so a cap that is
+    # not a multiple of the population would be passed by up to one generation.
+    k = repo.get_basis(basis_id).k
+    popsize = spec.spec.optimize.popsize or default_popsize(k)
+    cap = min(max_evaluations, spec.spec.optimize.max_evaluations)
+    cap = max(popsize, cap // popsize * popsize)
+    typed = spec.spec.model_copy(update={"optimize": spec.spec.optimize.model_copy(update={
+        "threshold": None, "min_evaluations": 0, "max_evaluations": cap,
+        "window": REFINE_WINDOW, "improvement": REFINE_IMPROVEMENT})})
+    canonical = parse_canonical(typed.model_dump(mode="json"), "spec")
+    x0 = [float(v) for v in encode(canonical.spec, start_from.spline)]
+    start = {
+        "kind": "refine",
+        "from": (f"refinement in basis {basis_id} at {key} = {value:g}, started at the "
+                 f"{start_from.source} answer of " + ", ".join(start_from.ids)),
+        "x0": x0, "sigma0": REFINE_SIGMA0, "cmrts": start_from.ids,
+    }
+    job, budget = jobs.submit_job(repo, settings, canonical, seed=seed, basis_id=basis_id,
+                                  start=start)
+    return job, budget, answer
+
+
+# ---- the pieces ---------------------------------------------------------------------------
+def _spline_of(rec: CmrtRecord) -> CmrtSpline:
+    values, vertical = rec.values, None
+    if values and isinstance(values[0], list | tuple):
+        vertical = np.asarray([float(v[1]) for v in values])
+        values = [v[0] for v in values]
+    return CmrtSpline(rec.preparation + rec.duration + rec.decay,
+                      np.asarray(rec.knots, dtype=float), np.asarray(values, dtype=float),
+                      vertical)
+
+
+def _answer_spline(d: Mapping[str, Any]) -> CmrtSpline:
+    """The spline of an answer's curve fields."""
+    return CmrtSpline(d["length"], np.asarray(d["knot_times"], dtype=float),
+                      np.asarray(d["values"], dtype=float),
+                      None if d["vertical_values"] is None
+                      else np.asarray(d["vertical_values"], dtype=float))
+
+
+def _set_candidate(out: dict[str, Any], c: _Candidate) -> None:
+    """The answer's curve fields and provenance from candidate `c`."""
+    s = c.spline
+    out.update(
+        source=c.source, members=c.ids, length=float(s.length),
+        knot_times=[float(v) for v in s.knot_times], values=[float(v) for v in s.values],
+        vertical_values=None if s.vertical_values is None
+        else [float(v) for v in s.vertical_values],
+        curve=sample_curve(s),
+    )
+
+
+def _member_source(repo: Repository, rec: CmrtRecord) -> str:
+    """`refined` for a member a refinement job made, else `member`."""
+    if rec.job_id is None:
+        return "member"
+    try:
+        start = repo.get_job(rec.job_id).start or {}
+    except NotFound:
+        return "member"
+    return "refined" if start.get("kind") == "refine" else "member"
+
+
+def _switch(recs: list[CmrtRecord], key: str) -> dict[str, Any]:
+    """The library's own check of two neighbours: the RMS distance of their spline parameters
+    and the largest change of a knot time (s)."""
+    distance = params_distance(recs[0], recs[1])
+    shift = max((abs(x - y) for x, y in zip(recs[0].knots, recs[1].knots, strict=False)),
+                default=0.0)
+    return {"detected": bool(distance > SWITCH_DISTANCE), "distance": distance,
+            "threshold": SWITCH_DISTANCE, "knot_shift": float(shift),
+            "between": [{"id": r.id, key: r.task_parameters[key]} for r in recs]}
+
+
+def _nearer(recs: list[CmrtRecord], key: str, value: float) -> CmrtRecord:
+    return min(recs, key=lambda r: (abs(r.task_parameters[key] - value), r.objective))
+
+
+def _predicted(base: dict[str, Any], recs: list[CmrtRecord]) -> float:
+    """The neighbours' objectives interpolated at the value (the library's own prediction)."""
+    if base["exact"] or len(recs) < 2:
+        return float(recs[0].objective)
+    w = float(base["weight"])
+    return float((1.0 - w) * recs[0].objective + w * recs[1].objective)
+
+
+def _spec_at(rec: CmrtRecord, key: str, value: float,
+             filters: Mapping[str, float] | None) -> CanonicalSpec:
+    """The spec of the query: member `rec`'s spec with `key` (and the filters) set."""
+    spec: TaskSpec = parse_spec(rec.spec, f"library CMRT {rec.id}")
+    doc = spec.with_parameter(key, value)
+    for name, v in (filters or {}).items():
+        doc = parse_spec(doc).with_parameter(name, v)
+    try:
+        return parse_canonical(doc, "spec")
+    except SpecError as err:
+        raise AnswerError(f"{key}: {value:g} makes the task invalid: {err}") from None
+
+
+def _params_hash(params: list[float]) -> str:
+    return text_hash(json.dumps([float(v) for v in params]))
+
+
+def _verify(repo: Repository, family: str, spec: CanonicalSpec, c: _Candidate,
+            simulate: Simulate) -> dict[str, Any]:
+    """Candidate `c` simulated on `spec`: the library's kept outcome, or one simulation (then
+    kept)."""
+    params = [float(v) for v in encode(spec.spec, c.spline)]
+    ph = _params_hash(params)
+    rec = repo.get_verification(spec.hash, ph)
+    cached = rec is not None
+    if rec is None:
+        got = simulate(spec.document, params)
+        outcome = {k: got.get(k) for k in ("status", "objective", "fell", "fall_direction",
+                                           "task_success", "cpu_seconds", "error")}
+        if outcome["status"] == "done" and outcome.get("objective") is None:
+            outcome.update(status="failed", error="the simulation gave no objective")
+        rec = repo.add_verification(family=family, spec_hash=spec.hash, params_hash=ph,
+                                    source=c.source, members=c.ids, outcome=outcome)
+    return {"source": c.source, "members": c.ids,
+            "outcome": {**rec.outcome, "spec_hash": spec.hash, "cached": cached}}
+
+
+def _stands(t: dict[str, Any]) -> bool:
+    o = t["outcome"]
+    return (o.get("status") == "done" and not o.get("fell")
+            and o.get("task_success") is not False)
+
+
+def _good(t: dict[str, Any], predicted: float) -> bool:
+    return _stands(t) and t["outcome"]["objective"] <= predicted * (1.0 + WEAK_MARGIN)
+
+
+def _rank(t: dict[str, Any]) -> tuple[int, float]:
+    o = t["outcome"]
+    obj = o.get("objective")
+    return (0 if _stands(t) else 1, math.inf if obj is None else float(obj))
+
+
+def _verdict(t: dict[str, Any], predicted: float) -> str:
+    o = t["outcome"]
+    if o.get("status") != "done":
+        return "failed"
+    if o.get("fell"):
+        return "falls"
+    if o.get("task_success") is False:
+        return "fails_task"
+    return "good" if _good(t, predicted) else "weak"
+
+
+def _best_cached(repo: Repository, spec: CanonicalSpec,
+                 cands: list[_Candidate]) -> _Candidate | None:
+    """The best standing candidate the library kept an outcome of at `spec` (a refinement
+    starts there), None when none is kept."""
+    best: tuple[float, _Candidate] | None = None
+    for c in cands:
+        params = [float(v) for v in encode(spec.spec, c.spline)]
+        rec = repo.get_verification(spec.hash, _params_hash(params))
+        if rec is None or not _stands({"outcome": rec.outcome}):
+            continue
+        if best is None or rec.outcome["objective"] < best[0]:
+            best = (float(rec.outcome["objective"]), c)
+    return None if best is None else best[1]
+
+
+def _message(why: str, out: dict[str, Any], best: dict[str, Any], tried: list[dict[str, Any]],
+             key: str, value: float) -> str:
+    o = best["outcome"]
+    verdict = out["verdict"]
+    if verdict == "good":
+        head = (f"{why}; simulated at {key} = {value:g}: stands"
+                + ("" if o.get("task_success") is None else " and does its task")
+                + f", objective {o['objective']:.4g}")
+        if best is not tried[0]:
+            head += (f" (the first answer {_what_went_wrong(tried[0])}: the "
+                     f"{best['source']} answer of {', '.join(best['members'])} is served "
+                     "instead, simulated)")
+        return head
+    if verdict == "weak":
+        return (f"{why}; the best the library holds at {key} = {value:g} stands, objective "
+                f"{o['objective']:.4g}, but is more than {WEAK_MARGIN:.0%} above the library's "
+                f"prediction {out['predicted_objective']:.4g}: refine it (POST /refinements)")
+    return (f"NOT A GOOD ANSWER: no CMRT the library holds stands at {key} = {value:g} "
+            f"({'; '.join(t['source'] + ' ' + _what_went_wrong(t) for t in tried)}); "
+            "refine it (POST /refinements) or optimise a job there")
+
+
+def _what_went_wrong(t: dict[str, Any]) -> str:
+    o = t["outcome"]
+    if o.get("status") != "done":
+        return f"failed to simulate ({o.get('error')})"
+    if o.get("fell"):
+        return f"falls {o.get('fall_direction') or ''}".rstrip()
+    if o.get("task_success") is False:
+        return "fails its task"
+    return f"is weak (objective {o['objective']:.4g})"
+
+
+__all__ = ["REFINE_MAX_EVALUATIONS", "SOURCES", "SWITCH_DISTANCE", "WEAK_MARGIN", "AnswerError",
+           "InterpolationError", "Simulate", "library_parameter", "refine_job", "serve"]
