@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import json
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -36,7 +38,7 @@ import numpy as np
 
 from application import jobs
 from application.admission import default_popsize
-from application.library import SWITCH_DISTANCE, interpolate_library, params_distance
+from application.library import SWITCH_DISTANCE, neighbours_answer, params_distance
 from cmrt.canonical import text_hash
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
@@ -113,9 +115,8 @@ def serve(
     """The library's answer at `key` = `value` (module docstring); simulated and checked
     when `simulate` is given. InterpolationError when the library cannot interpolate there
     (range, family, parameter); AnswerError for a spec the value makes invalid."""
-    base = interpolate_library(repo, family, key, value, filters=filters,
-                               extrapolate=extrapolate)
-    recs = [repo.get_cmrt(n["id"]) for n in base["neighbours"]]
+    base, recs = neighbours_answer(repo, family, key, value, filters=filters,
+                                   extrapolate=extrapolate)
     switch = _switch(recs, key) if not base["exact"] and len(recs) == 2 else None
     interp = _answer_spline(base)
     near = _nearer(recs, key, value)
@@ -300,17 +301,36 @@ def _predicted(base: dict[str, Any], recs: list[CmrtRecord]) -> float:
     return float((1.0 - w) * recs[0].objective + w * recs[1].objective)
 
 
+#: Query specs this process has built (library entries never change, so a member's id, the
+#: parameter and the value name one spec): a kept answer is served without parsing a spec.
+_SPECS_AT: OrderedDict[tuple[Any, ...], CanonicalSpec] = OrderedDict()
+#: How many query specs are kept (a few kB each).
+SPECS_AT_CACHED = 1024
+_SPECS_AT_LOCK = threading.Lock()
+
+
 def _spec_at(rec: CmrtRecord, key: str, value: float,
              filters: Mapping[str, float] | None) -> CanonicalSpec:
     """The spec of the query: member `rec`'s spec with `key` (and the filters) set."""
+    cache_key = (rec.id, key, float(value), tuple(sorted((filters or {}).items())))
+    with _SPECS_AT_LOCK:  # the service answers on several threads
+        got = _SPECS_AT.get(cache_key)
+        if got is not None:
+            _SPECS_AT.move_to_end(cache_key)
+            return got
     spec: TaskSpec = parse_spec(rec.spec, f"library CMRT {rec.id}")
     doc = spec.with_parameter(key, value)
     for name, v in (filters or {}).items():
         doc = parse_spec(doc).with_parameter(name, v)
     try:
-        return parse_canonical(doc, "spec")
+        got = parse_canonical(doc, "spec")
     except SpecError as err:
         raise AnswerError(f"{key}: {value:g} makes the task invalid: {err}") from None
+    with _SPECS_AT_LOCK:
+        _SPECS_AT[cache_key] = got
+        if len(_SPECS_AT) > SPECS_AT_CACHED:
+            _SPECS_AT.popitem(last=False)
+    return got
 
 
 def _params_hash(params: list[float]) -> str:

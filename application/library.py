@@ -129,7 +129,7 @@ def library_members(repo: Repository, family: str) -> list[LibraryCmrt]:
     return [LibraryCmrt.of(r) for r in items if r.spec is not None]
 
 
-def interpolate_library(
+def neighbours_answer(
     repo: Repository,
     family: str,
     key: str,
@@ -138,10 +138,9 @@ def interpolate_library(
     filters: Mapping[str, float] | None = None,
     extrapolate: bool = False,
     like: Callable[[CmrtKey], bool] | None = None,
-) -> dict[str, Any]:
-    """Interpolated CMRT of `family` at task parameter `key` = `value` among the library CMRTs
-    (optionally only those whose other task parameters equal `filters`, and those `like`
-    accepts)."""
+) -> tuple[dict[str, Any], list[CmrtRecord]]:
+    """`interpolate_library`'s answer and the neighbouring library CMRTs it was built from
+    (lower first; one when the value is a member's)."""
     keys = [k for k in repo.cmrt_keys(family)[:MAX_MEMBERS] if k.has_spec]
     if like is not None:
         keys = [k for k in keys if like(k)]
@@ -160,11 +159,12 @@ def interpolate_library(
                       extrapolate=extrapolate)
     spline = out.spline()
     d = out.to_dict()
-    neighbours = []
+    neighbours, recs = [], []
     for cid, v in ((out.lower, out.lower_value), (out.upper, out.upper_value)):
         if neighbours and neighbours[0]["id"] == cid:
             continue
         r = by_id[cid]
+        recs.append(r)
         neighbours.append({"id": cid, key: v, "objective": r.objective,
                            "task_parameters": r.task_parameters})
     return {
@@ -180,7 +180,24 @@ def interpolate_library(
         "values": d["values"],
         "vertical_values": d["vertical_values"],
         "curve": sample_curve(spline),
-    }
+    }, recs
+
+
+def interpolate_library(
+    repo: Repository,
+    family: str,
+    key: str,
+    value: float,
+    *,
+    filters: Mapping[str, float] | None = None,
+    extrapolate: bool = False,
+    like: Callable[[CmrtKey], bool] | None = None,
+) -> dict[str, Any]:
+    """Interpolated CMRT of `family` at task parameter `key` = `value` among the library CMRTs
+    (optionally only those whose other task parameters equal `filters`, and those `like`
+    accepts)."""
+    return neighbours_answer(repo, family, key, value, filters=filters,
+                             extrapolate=extrapolate, like=like)[0]
 
 
 #: CMA-ES step (box units) of a job started from the library: the continuation members' warm
@@ -206,8 +223,8 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
     for key in sorted(params):
         filters = {k: v for k, v in params.items() if k != key}
         try:
-            out = interpolate_library(repo, family, key, params[key], filters=filters,
-                                      like=like)
+            out, recs = neighbours_answer(repo, family, key, params[key], filters=filters,
+                                          like=like)
         except InterpolationError:
             continue
         vy = out["vertical_values"]
@@ -219,7 +236,7 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
                 f"library: interpolated along {key} between " + " and ".join(
                     f"{n[key]:g}" for n in out["neighbours"]) + f" (weight {out['weight']:.3f})")
         if not out["exact"] and len(ids) == 2:  # across a strategy switch: never the average
-            a, b = (repo.get_cmrt(i) for i in ids)
+            a, b = recs
             distance = params_distance(a, b)
             if distance > SWITCH_DISTANCE:
                 near = min((a, b), key=lambda r: (abs(r.task_parameters[key] - params[key]),
@@ -266,4 +283,4 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
 
 __all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "SWITCH_DISTANCE", "LibraryCmrt",
            "import_family", "interpolate_library", "library_entry", "library_members",
-           "library_start", "params_distance"]
+           "library_start", "neighbours_answer", "params_distance"]

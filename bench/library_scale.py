@@ -159,18 +159,45 @@ class _HttpxClient:
 CLIENTS = {"http.client": _StdlibClient, "httpx": _HttpxClient}
 
 
-def _requests(base: str, families: int, n: int, seed: int,
-              client: str = "httpx") -> dict[str, Any]:
+def _verified_points(families: int, n: int, seed: int) -> list[dict[str, Any]]:
+    """The queries answered with `verify=true` (each simulated once, then kept)."""
+    rng = random.Random(seed + 10_000)
+    return [{"family": f"domino_{rng.randrange(families):03d}",
+             "mass": round(rng.uniform(MASS_LO, MASS_HI), 2), "verify": "true"}
+            for _ in range(n)]
+
+
+def _first_verified(base: str, points: list[dict[str, Any]]) -> list[float]:
+    """Milliseconds of each point's verified answer (the first one simulates it)."""
+    c = CLIENTS["httpx"](base)
+    out = []
+    try:
+        for q in points:
+            t0 = time.perf_counter()
+            status, body = c.get("/cmrts/interpolate", q)
+            if status != 200:
+                raise RuntimeError(f"verify {q}: {status} {body[:200]!r}")
+            out.append((time.perf_counter() - t0) * 1000)
+    finally:
+        c.close()
+    return out
+
+
+def _requests(base: str, families: int, n: int, seed: int, client: str = "httpx",
+              verified: list[dict[str, Any]] | None = None) -> dict[str, Any]:
     rng = random.Random(seed)
-    out: dict[str, list[float]] = {"find": [], "interpolate": [], "families": [], "health": []}
+    out: dict[str, list[float]] = {"find": [], "interpolate": [], "verified": [],
+                                   "families": [], "health": []}
     c = CLIENTS[client](base)
     try:
         for i in range(n + 20):  # the first 20 warm the server up and are not counted
             fam = f"domino_{rng.randrange(families):03d}"
             mass = round(rng.uniform(MASS_LO, MASS_HI), 2)
+            kept = [("verified", "/cmrts/interpolate", rng.choice(verified))] if verified else []
             for name, path, q in (
                 ("find", "/cmrts", {"family": fam, "mass": mass, "tolerance": TOLERANCE}),
                 ("interpolate", "/cmrts/interpolate", {"family": fam, "mass": mass}),
+                *kept,  # a verified answer the library kept: no simulation
                 ("families", "/cmrts/families", {}),
                 ("health", "/health", {}),  # the HTTP stack's floor, a database ping
             ):
@@ -240,11 +267,16 @@ def run_backend(backend: str, args: argparse.Namespace, entries: list[CmrtEntry]
         fill_s = _fill(url, entries)
         samples: dict[tuple[str, str], dict[str, list[float]]] = {}
         pages: list[float] = []
+        points = _verified_points(args.families, args.verified, args.seed)
+        first: list[float] = []
         for rnd in range(args.rounds):
             for exe in args.cmrt:
                 proc, base = _serve(url, data, exe)
+                if points and not first:
+                    first = _first_verified(base, points)
                 for client in args.client:
-                    got = _requests(base, args.families, args.requests, args.seed + rnd, client)
+                    got = _requests(base, args.families, args.requests, args.seed + rnd, client,
+                                    points)
                     into = samples.setdefault((_label(exe), client), {})
                     for k, v in got.items():
                         into.setdefault(k, []).extend(v)
@@ -253,10 +285,10 @@ def run_backend(backend: str, args: argparse.Namespace, entries: list[CmrtEntry]
                 os.killpg(proc.pid, signal.SIGTERM)
                 proc.wait(timeout=30)
                 proc = None
-        lat = [{"server": srv, "client": cl, **{k: _stats(v) for k, v in by.items()}}
+        lat = [{"server": srv, "client": cl, **{k: _stats(v) for k, v in by.items() if v}}
                for (srv, cl), by in samples.items()]
         return {"backend": backend, "cmrts": len(entries), "fill_seconds": fill_s,
-                "latency_ms": lat, "page_drawn_ms": pages}
+                "latency_ms": lat, "page_drawn_ms": pages, "first_verified_ms": first}
     finally:
         if proc is not None:
             os.killpg(proc.pid, signal.SIGTERM)
@@ -282,6 +314,9 @@ def main() -> None:
                     help="cmrt executables to serve with, in turn (default: this checkout's)")
     ap.add_argument("--rounds", type=int, default=1,
                     help="times each executable serves, alternating (samples pooled)")
+    ap.add_argument("--verified", type=int, default=5,
+                    help="queries answered with verify=true: each simulated once (timed "
+                         "apart), then asked again among the timed requests (kept answers)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     entries = _entries(args.families, args.per_family, args.seed)
@@ -296,10 +331,15 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|")
     for r in results:
         for row in r["latency_ms"]:
-            for name in ("find", "interpolate", "families", "health"):
-                s = row[name]
+            for name in ("find", "interpolate", "verified", "families", "health"):
+                s = row.get(name)
+                if s is None:
+                    continue
                 print(f"| {r['backend']} | {row['server']} | {row['client']} | {name} | "
                       f"{s['p50']:.2f} | {s['p99']:.2f} | {s['max']:.1f} |")
+        if r["first_verified_ms"]:
+            ms = ", ".join(f"{v:.0f}" for v in r["first_verified_ms"])
+            print(f"| {r['backend']} | | | first verified answer (ms) | {ms} | | |")
         if r["page_drawn_ms"]:
             ms = ", ".join(f"{v:.0f}" for v in r["page_drawn_ms"])
             print(f"| {r['backend']} | | | library page drawn (ms) | {ms} | | |")

@@ -14,7 +14,7 @@ Contracts:
     processes killed) and a fresh one is started by the next `map`.
   * `map(fn, batch, cut_margin=m)` (m from `optim.rankcut.cut_margin`; None: no cut) lets the
     last unfinished candidate of the batch stop early once it certainly ranks last
-    (`optim.rankcut`), when `fn` has `supports_cut` (takes `stop_above`).
+    (`optim.rankcut`), when `fn` is an `optim.outcome.CuttableObjective` (takes `stop_above`).
   * `PoolExecutor` is the one process pool (`optim.procpool.SlotPool`): its processes never
     outlive the process that made it (each watches it and exits within PARENT_WATCH_S once it
     is gone, killed with SIGKILL, say, where no clean-up runs).
@@ -25,14 +25,14 @@ from __future__ import annotations
 import os
 import threading
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from types import TracebackType
 from typing import Any
 
 import numpy as np
 
 from optim.errors import EvaluationError
-from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
+from optim.outcome import FAILED_OBJECTIVE, CuttableObjective, EvalOutcome, Objective
 from optim.procpool import (
     PARENT_WATCH_S,
     SlotPool,
@@ -50,9 +50,6 @@ DEFAULT_BATCH_TIMEOUT_S: float | None = 1800.0
 STARTUP_TIMEOUT_S = 120.0
 #: Start method of pool workers: "spawn" (no forked threads or ODE state; works everywhere).
 DEFAULT_START_METHOD = "spawn"
-
-
-Objective = Callable[[np.ndarray], "EvalOutcome | float"]
 
 
 class Executor(ABC):
@@ -88,7 +85,7 @@ class SerialExecutor(Executor):
     def map(self, fn: Objective, batch: Sequence[np.ndarray],
             cut_margin: float | None = None) -> list[EvalOutcome]:
         xs = [np.asarray(x, dtype=float) for x in batch]
-        if cut_margin is None or len(xs) < 2 or not getattr(fn, "supports_cut", False):
+        if cut_margin is None or len(xs) < 2 or not isinstance(fn, CuttableObjective):
             return [evaluate_one(fn, x) for x in xs]
         out = [evaluate_one(fn, x) for x in xs[:-1]]
         bound = bound_for_last([o.objective for o in out], cut_margin)

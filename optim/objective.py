@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cmrt.canonical import canonical_json, text_hash
-from optim.outcome import EvalOutcome
+from optim.outcome import CuttableObjective, EvalOutcome
 from optim.spline import decode
 from sim.spec import CanonicalSpec, TaskSpec, canonical_spec, stored_spec, text_spec
 
@@ -155,8 +155,8 @@ def _canonical(spec: TaskSpec | CanonicalSpec | Mapping[str, Any]) -> CanonicalS
     return canonical_spec(spec)
 
 
-class SimObjective:
-    """Picklable objective for one spec; see module docstring."""
+class SimObjective(CuttableObjective):
+    """Picklable objective for one spec (it may be cut: `stop_above`); see module docstring."""
 
     def __init__(self, spec: TaskSpec | CanonicalSpec | Mapping[str, Any]) -> None:
         canonical = SPECS.put(_canonical(spec))
@@ -182,9 +182,6 @@ class SimObjective:
     @property
     def spec(self) -> TaskSpec:
         return self.canonical().spec
-
-    #: `__call__` takes `stop_above` (optim.rankcut's early stop of a certain last).
-    supports_cut = True
 
     def evaluation(
         self, params: Sequence[float] | np.ndarray | None, traces: bool = False,

@@ -1,4 +1,6 @@
-"""`EvalOutcome`: the result of evaluating one candidate (light module: numpy-free imports).
+"""What evaluating one candidate is and gives (light module: numpy-free imports):
+`Objective`, what every executor evaluates; `CuttableObjective`, the objectives that may stop
+early as the certain last of their generation (`optim.rankcut`); `EvalOutcome`, the result.
 
 Kept apart from `optim.executors` and `optim.cmaes` so pool worker processes and objectives
 import it without pulling in pycma (which takes ~1.5 s to import).
@@ -6,8 +8,10 @@ import it without pulling in pycma (which takes ~1.5 s to import).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Protocol
 
 #: Objective recorded for a failed evaluation, and given to CMA-ES in place of NaN / inf.
 #: Far above any CP-error norm or fall penalty (metres), so failures rank worst.
@@ -61,3 +65,23 @@ def _opt_float(v: Any) -> float | None:
 
 
 __all__ = ["FAILED_OBJECTIVE", "EvalOutcome"]
+
+
+class Objective(Protocol):
+    """A candidate's objective: `fn(params) -> EvalOutcome | float` (a float is wrapped into
+    an outcome), deterministic, and picklable for a process pool (a top-level function or an
+    instance of a top-level class). One that may be cut is a `CuttableObjective`."""
+
+    def __call__(self, params: Any, /) -> EvalOutcome | float: ...
+
+
+class CuttableObjective(ABC):
+    """An objective that may stop early: `fn(params, stop_above=read)` calls `read()` as it
+    goes (a bound; inf: none) and stops once its lower bound of the objective exceeds it,
+    returning that bound with `cut=True` (`optim.rankcut`). Executors cut only these (by type:
+    an objective declares it by deriving from this class)."""
+
+    @abstractmethod
+    def __call__(self, params: Any, /,
+                 stop_above: Callable[[], float] | None = None) -> EvalOutcome:
+        """The outcome of `params`, stopped early once its lower bound exceeds `stop_above()`."""

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from optim.errors import EvaluationError
-from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
+from optim.outcome import FAILED_OBJECTIVE, CuttableObjective, EvalOutcome, Objective
 from optim.rankcut import bound_for_last
 
 #: How often a slot process checks that the process that made the pool is still alive, s.
@@ -61,7 +61,6 @@ PARENT_WATCH_S = 0.5
 #: Longest wait between two `check()` calls in `run`, and the time limits' resolution, s.
 POLL_S = 0.1
 
-Objective = Callable[..., "EvalOutcome | float"]
 OnResult = Callable[[int, "EvalOutcome | EvaluationError"], None]
 
 
@@ -460,11 +459,11 @@ class SlotPool:
         """Evaluate `batch` for `group` (see the module docstring); returns False when the
         batch ran past `timeout` s (its unfinished candidates dropped, not reported).
 
-        cut_margin: not None, when `fn` has `supports_cut` and the batch and `done` (the
+        cut_margin: not None, when `fn` is a `CuttableObjective` and the batch and `done` (the
         objective values of the generation's candidates finished before this batch) hold at
         least two candidates, lets the last unfinished one stop early (`optim.rankcut`)."""
         xs = [np.asarray(x, dtype=float) for x in batch]
-        cut = (cut_margin is not None and getattr(fn, "supports_cut", False)
+        cut = (cut_margin is not None and isinstance(fn, CuttableObjective)
                and len(xs) + len(done) >= 2)
         keys = self.new_keys(len(xs))
         if cut:  # the key the slot reads is the one its call was given

@@ -44,6 +44,7 @@ from optim.loop import (
     run_generations,
 )
 from optim.objective import SimObjective
+from optim.outcome import Objective
 from optim.result import OptimizationResult
 from sim.spec import CanonicalSpec, TaskSpec, canonical_spec
 
@@ -53,7 +54,6 @@ if TYPE_CHECKING:
 CHECKPOINT_FORMAT = "cmrt-checkpoint/1"
 
 Progress = Callable[[GenerationStats], "bool | None"]
-Objective = Callable[[np.ndarray], "EvalOutcome | float"]
 
 
 def _checkpoint_meta(spec: CanonicalSpec, seed: int, basis: Basis | None, dim: int

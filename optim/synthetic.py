@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from optim.outcome import EvalOutcome
+from optim.outcome import CuttableObjective, EvalOutcome
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ class NoisyFlat:
 
 
 @dataclass(frozen=True)
-class RunningSum:
+class RunningSum(CuttableObjective):
     """A clip-like objective: sqrt of a sum of `steps` squared errors e_k = (x_j - centre) *
     (1 + k / steps) over the coordinates in turn, so the running sum grows as a simulated
     clip's does. Takes `stop_above` like `optim.objective.SimObjective`: read every
@@ -76,7 +76,6 @@ class RunningSum:
     #: to be evaluated last then meets its bound from its first check, as in a serial run, so
     #: whether it is cut depends on the values alone, never on timing. Changes no value.
     hold: float = 0.0
-    supports_cut = True
 
     def __call__(self, x: np.ndarray, stop_above=None) -> EvalOutcome:  # noqa: ANN001
         d = np.asarray(x, dtype=float) - self.centre

@@ -66,7 +66,13 @@ from store.records import (
     RUNNING,
     STOPPED,
 )
-from worker.executors import DriverInterruptError, GenerationExecutor, JobFailedError
+from worker.evaluation import (
+    DriverInterruptError,
+    DriverShutdownError,
+    JobCancelledError,
+    LeaseLostError,
+)
+from worker.executors import GenerationExecutor, JobFailedError
 
 log = logging.getLogger(__name__)
 
@@ -222,17 +228,18 @@ class JobDriver:
 
     # -- interruption --------------------------------------------------------------------------
     def check(self, force: bool = False) -> None:
-        """Raise DriverInterruptError if the driver must stop now (shutdown, lease lost, cancelled).
+        """Raise a DriverInterruptError if the driver must stop now: DriverShutdownError,
+        LeaseLostError, JobCancelledError.
         The cancel flag is read from the store at most every 0.5 s unless `force`."""
         if self.shutdown.is_set():
-            raise DriverInterruptError("shutdown")
+            raise DriverShutdownError
         if self._lease is not None and self._lease.lost.is_set():
-            raise DriverInterruptError("lease lost")
+            raise LeaseLostError
         now = time.monotonic()
         if force or now - self._last_cancel_check >= 0.5:
             self._last_cancel_check = now
             if self.repo.cancel_requested(self.job_id):
-                raise DriverInterruptError("cancel")
+                raise JobCancelledError
 
     # -- main ----------------------------------------------------------------------------------
     def run(self) -> str | None:
@@ -251,9 +258,9 @@ class JobDriver:
         self._lease.start()
         try:
             return self._run()
-        except DriverInterruptError as why:
-            if str(why) == "cancel":
-                return self._finish_status(CANCELLED)
+        except JobCancelledError:
+            return self._finish_status(CANCELLED)
+        except DriverInterruptError as why:  # shutdown, lease lost: the job is left as it is
             log.info("job %s: driver stops (%s)", self.job_id, why)
             return None
         except (JobFailedError, EvaluationError) as err:
@@ -306,7 +313,7 @@ class JobDriver:
             raise JobFailedError(str(err)) from None
         spec = canonical.spec
         if job.cancel_requested:
-            raise DriverInterruptError("cancel")
+            raise JobCancelledError
         if job.status == QUEUED:
             self.repo.set_job_status(self.job_id, RUNNING)
         self.space = self._space(job, spec)

@@ -62,8 +62,30 @@ class JobFailedError(Exception):
 
 
 class DriverInterruptError(Exception):
-    """The driver must stop now (cancel requested, lease lost, shutdown); see worker.driver.
-    Its message says why; "shutdown" (a graceful stop) gives back the attempts it cut short."""
+    """The driver must stop now; the subclass says why (caught by type): `DriverShutdownError`,
+    `JobCancelledError`, `LeaseLostError` (see `worker.driver.JobDriver.check`)."""
+
+
+class DriverShutdownError(DriverInterruptError):
+    """A graceful stop of the driver's process: the job stays running for the next driver,
+    and the attempts it cut short are given back (not counted as crashes)."""
+
+    def __init__(self, msg: str = "shutdown") -> None:
+        super().__init__(msg)
+
+
+class JobCancelledError(DriverInterruptError):
+    """The job's cancellation was requested: the driver revokes what it sent and cancels it."""
+
+    def __init__(self, msg: str = "cancel") -> None:
+        super().__init__(msg)
+
+
+class LeaseLostError(DriverInterruptError):
+    """Another driver took the job's lease: this one stops without touching the job."""
+
+    def __init__(self, msg: str = "lease lost") -> None:
+        super().__init__(msg)
 
 
 def attempts_exhausted_message(generation: int, index: int, attempts: int) -> str:
@@ -189,7 +211,7 @@ def run_candidates(
     killed mid-task has counted an attempt only for the candidate it was running), after the
     fault-injection hooks (worker.faults). With `pool_run` every candidate is claimed, then the
     claimed ones go to the pool together; one whose process died keeps its counted attempt and
-    stays pending (the caller claims it again), and a `DriverInterruptError("shutdown")` gives
+    stays pending (the caller claims it again), and a `DriverShutdownError` gives
     back the attempts of the candidates it left unfinished (`Repository.release_attempt`).
     `notify(job_id, generation, index)` is called once a candidate is resolved in the store
     (stored here, or found resolved already): the driver's wake-up (worker.notify). The job's
@@ -256,11 +278,10 @@ def run_candidates(
             try:
                 pool_run(objective()[1], [p for _, p in todo],
                          lambda pos, out: record(todo[pos][0], out))
-            except DriverInterruptError as why:
-                if str(why) == "shutdown":  # a graceful stop is not a crash: un-count them
-                    for i, _ in todo:
-                        if results[i]["status"] == "claimed":
-                            repo.release_attempt(job_id, generation, i)
+            except DriverShutdownError:  # a graceful stop is not a crash: un-count them
+                for i, _ in todo:
+                    if results[i]["status"] == "claimed":
+                        repo.release_attempt(job_id, generation, i)
                 raise
     return [results[i] for i in indices]
 

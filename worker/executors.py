@@ -35,7 +35,7 @@ from sim.spec import TaskSpec
 from store import EvaluationRecord, Repository
 from store.records import DONE, PENDING
 from worker.evaluation import (
-    DriverInterruptError,
+    JobCancelledError,
     JobFailedError,
     JobSpecs,
     ObjectiveFactory,
@@ -445,9 +445,8 @@ class CeleryExecutor(GenerationExecutor):
                     self._progress()
                     top_up()
                 read_store = not trusted or (not sent_at and not unsent)
-        except DriverInterruptError as why:
-            if str(why) == "cancel":
-                self._revoke(job_id, generation, list(sent_at))
+        except JobCancelledError:
+            self._revoke(job_id, generation, list(sent_at))
             raise
         finally:
             with self._lock:
