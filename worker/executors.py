@@ -9,12 +9,13 @@ executor returns once every one of them is resolved (done or failed).
   `max_attempts`; attempts cut short by a graceful stop (shutdown) are given back
   (`release_attempt`). A generation's certain last candidate stops early (`optim.rankcut`),
   as on the command line.
-- `CeleryExecutor`: sends one `evaluate_candidate(job_id, generation, index)` task per pending
-  candidate and waits by polling the store's counts (never `.get()`); lost messages are sent
-  again (idempotent, see `CeleryExecutor.evaluate`), so a message lost with a broker restart or
-  a killed worker never hangs a job; if the broker stays unreachable for `broker_deadline` s the
-  job fails with a clear error. No candidate is cut early here: the bound would have to reach
-  a simulation running in another machine's worker process, mid-run (docs/architecture.md).
+- `CeleryExecutor`: sends the pending candidates as `evaluate_candidates(job_id, generation,
+  indices)` tasks of a few candidates each (`plan_batches`) and waits by polling the store's
+  counts (never `.get()`); lost messages are sent again (idempotent, see
+  `CeleryExecutor.evaluate`), so a message lost with a broker restart or a killed worker never
+  hangs a job; if the broker stays unreachable for `broker_deadline` s the job fails with a
+  clear error. No candidate is cut early here: the bound would have to reach a simulation
+  running in another machine's worker process, mid-run (docs/architecture.md).
 """
 
 from __future__ import annotations
