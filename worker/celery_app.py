@@ -17,7 +17,6 @@ from celery import Celery
 
 from cmrt.settings import Settings, get_settings
 
-TASK_EVALUATE = "cmrt.evaluate_candidate"
 TASK_EVALUATE_BATCH = "cmrt.evaluate_candidates"
 
 

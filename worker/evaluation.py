@@ -297,6 +297,6 @@ def run_candidate(
     worker_name: str | None = None,
     notify: Callable[[str, int, int], Any] | None = None,
 ) -> dict[str, Any]:
-    """`run_candidates` of one candidate, in this process (the single-candidate Celery task)."""
+    """`run_candidates` of one candidate, in this process."""
     return run_candidates(repo, job_id, generation, [index], max_attempts=max_attempts,
                           cache=cache, worker_name=worker_name, notify=notify)[0]

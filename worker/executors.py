@@ -9,12 +9,13 @@ executor returns once every one of them is resolved (done or failed).
   `max_attempts`; attempts cut short by a graceful stop (shutdown) are given back
   (`release_attempt`). A generation's certain last candidate stops early (`optim.rankcut`),
   as on the command line.
-- `CeleryExecutor`: sends one `evaluate_candidate(job_id, generation, index)` task per pending
-  candidate and waits by polling the store's counts (never `.get()`); lost messages are sent
-  again (idempotent, see `CeleryExecutor.evaluate`), so a message lost with a broker restart or
-  a killed worker never hangs a job; if the broker stays unreachable for `broker_deadline` s the
-  job fails with a clear error. No candidate is cut early here: the bound would have to reach
-  a simulation running in another machine's worker process, mid-run (docs/architecture.md).
+- `CeleryExecutor`: sends the pending candidates as `evaluate_candidates(job_id, generation,
+  indices)` tasks of a few candidates each (`plan_batches`) and waits by polling the store's
+  counts (never `.get()`); lost messages are sent again (idempotent, see
+  `CeleryExecutor.evaluate`), so a message lost with a broker restart or a killed worker never
+  hangs a job; if the broker stays unreachable for `broker_deadline` s the job fails with a
+  clear error. No candidate is cut early here: the bound would have to reach a simulation
+  running in another machine's worker process, mid-run (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -31,7 +32,6 @@ from typing import Any
 from cmrt.settings import Settings
 from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
-from sim.spec import TaskSpec
 from store import EvaluationRecord, Repository
 from store.records import DONE, PENDING
 from worker.evaluation import (
@@ -64,16 +64,14 @@ class GenerationExecutor(ABC):
         self,
         repo: Repository,
         job_id: str,
-        spec: TaskSpec,
         generation: int,
         population: int,
         check: Checkpoint,
         cut_margin: float | None = None,
     ) -> list[EvaluationRecord]:
         """Resolve every pending evaluation of (job, generation); return them in index order.
-        `spec` is the job's parsed spec (the driver parses it once). `cut_margin`
-        (`optim.rankcut.cut_margin`; None: no cut) lets the generation's certain last candidate
-        stop early where the executor can (the run stays identical)."""
+        `cut_margin` (`optim.rankcut.cut_margin`; None: no cut) lets the generation's certain
+        last candidate stop early where the executor can (the run stays identical)."""
 
     def stats(self) -> dict[str, Any]:
         return {}
@@ -127,7 +125,7 @@ class LocalPoolExecutor(GenerationExecutor):
         self.cache = JobSpecs(objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
-    def evaluate(self, repo, job_id, spec, generation, population, check, cut_margin=None):
+    def evaluate(self, repo, job_id, generation, population, check, cut_margin=None):
         """Rounds of `run_candidates` over the pending candidates until none is left (a
         candidate whose process died stays pending and is claimed again, its attempts counted).
         The cut needs every other candidate's value: the stored ones are passed along."""
@@ -343,7 +341,7 @@ class CeleryExecutor(GenerationExecutor):
         except self._errors as err:  # the claims skip them anyway (the job is terminal)
             log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
 
-    def evaluate(self, repo, job_id, spec, generation, population, check, cut_margin=None):
+    def evaluate(self, repo, job_id, generation, population, check, cut_margin=None):
         """Send the unresolved candidates, at most `dispatch_window` unresolved at a time (so
         jobs share the queue fairly), and wait for the store to hold all their results.
 

@@ -349,6 +349,10 @@ class MomentumController(Controller):
         g[hq] += prm.b_t * w2 * qdd_des
         if use_bias:
             g -= prm.b_p * a_p * r_p
+        extra = self.extra_objective()
+        if extra is not None:
+            H += extra[0]
+            g += extra[1]
         k = Js.shape[0]
         K = np.zeros((n + k, n + k))
         K[:n, :n] = H
@@ -363,6 +367,12 @@ class MomentumController(Controller):
                                       (lo + prm.cop_box - centre, hi - prm.cop_box - centre))
         self.qdd = x[:n]
         return self.qdd
+
+    def extra_objective(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """More quadratic terms of the QP, (H (n, n), g (n,)) added to its cost
+        1/2 qdd^T H qdd - g^T qdd before it is solved (a stepping controller's task-space
+        tracking of the swing); None (the default): none, the QP as the module doc says."""
+        return None
 
     def _tracking_terms(self, prm: ControllerParams) -> tuple[np.ndarray, np.ndarray]:
         """(W^2, b_t diag(W^2)) for the gains `prm`: kept while the schedule returns the same

@@ -18,17 +18,23 @@ Phases (`SteppingController.phase`):
   length away); the plan is re-made from the measured CM at every swing QP solve
   (`sim.ipm.replan_step`), since a push may still act. At every solve the whole-body reference
   comes from inverse kinematics (`sim.ik.solve_ik`: stance foot fixed, CM at the IPM's, the
-  swing foot on its path, flat) and the momentum QP balances it with the IPM's CM acceleration
-  as its linear-momentum feed-forward, the CoP aimed at the pivot, the hard CoP (ZMP)
-  constraint COP_MARGIN inside the stance foot, and the upper body's tracking weights scaled
-  down so that it, not the legs, keeps the ZMP in (UPPER_WEIGHT_SCALE).
-* "landed": the swing foot is flat on the ground (heel and toe within the contact margin,
-  after half the swing). Both feet are in stance, the support runs from the rear heel to the
+  swing foot on its path, flat, the pelvis at its standing angle) and the momentum QP balances
+  it with the IPM's CM acceleration as its linear-momentum feed-forward, the CoP aimed at the
+  pivot, the hard CoP (ZMP) constraint COP_MARGIN inside the stance foot, and the upper body's
+  tracking weights scaled down so that it, not the legs, keeps the ZMP in
+  (UPPER_WEIGHT_SCALE). The QP also tracks in task space (the seed's IK + ZMP QP): the swing
+  sole on its planned path, the swing foot flat and the pelvis at the IK's angle, each a
+  weighted PD row (FOOT_WEIGHT, FOOT_PITCH_WEIGHT, PELVIS_WEIGHT). While its planned normal
+  force is below LOW_NORMAL_FORCE of the weight it solves at every step.
+* "landed": the swing foot touches the ground (heel or toe within the contact margin, pitched
+  at most LAND_PITCH) after half the swing, within LAND_TOLERANCE of its plan or late in the
+  swing (LAND_FRACTION): an early heel strike short of the plan swings on. Both feet are in
+  stance, the support runs from the rear heel to the
   front toe, and a feet-fixed momentum controller takes over: its legs' reference goes to the
   posture (from inverse kinematics) that puts the CM over the middle of that wider support, its
   QP keeps the CoP inside it, and the support wrench is shared between the feet by
   `sim.dynamics.inverse_dynamics_feet`. If it fails, the foot left behind steps (at most
-  `max_steps` steps in a clip).
+  `max_steps` steps in a clip; a step's foot travels at most MAX_TRAVEL_FRACTION leg lengths).
 
 Nothing here names a joint: the legs are the hinge chains between the root and each foot.
 """
@@ -58,7 +64,9 @@ from sim.dynamics import (
     ModelArrays,
     body_point,
     checked_inverse_dynamics,
+    feet_terms,
     forward_kinematics,
+    momentum_bias,
 )
 from sim.ik import IK_DAMPING, IkResult, Target, leg_hinges, solve_ik
 from sim.ipm import StepPlan, capture_point, plan_step, replan_step, step_direction
@@ -87,6 +95,26 @@ SWING_DAMPING = 40.0
 SWING_WEIGHT = 3.0
 STANCE_WEIGHT = 0.3
 UPPER_WEIGHT_SCALE = 0.1
+#: Task-space tracking in the swing QP: weights of its rows (per (m/s^2)^2 for the swing
+#: sole's x and y, per (rad/s^2)^2 for the foot's pitch and the pelvis' angle; the momentum
+#: rows weigh 1 per (m/s^2)^2 of CM acceleration). The sole centre follows its planned path and
+#: the foot stays flat at SWING_STIFFNESS / SWING_DAMPING; the pelvis goes to the IK posture's
+#: angle (its standing angle) at PELVIS_STIFFNESS / PELVIS_DAMPING. Measured on push grids
+#: (docs/physics.md, "Stepping"): weights of 0.3 on the sole or 1 on the pelvis fail most
+#: steps (the tracking takes the normal force the ZMP needs); 0.1 / 0.3 / 0.1 land within
+#: 4 cm of the plan from 200 N up.
+FOOT_WEIGHT = 0.1
+FOOT_PITCH_WEIGHT = 0.3
+PELVIS_WEIGHT = 0.1
+PELVIS_STIFFNESS = 100.0  # s^-2
+PELVIS_DAMPING = 20.0  # s^-1
+#: s: the planned foot path's velocity and acceleration are central differences over this.
+FOOT_PATH_STEP = 0.001
+#: The swing foot travels at most this many leg lengths from where it lifted (with
+#: `max_step_fraction` from the stance foot): a follow-up step landing under the capture point
+#: (1.35 m of travel in 0.3 s after a 300 N / 0.4 s push) does not land before the stance foot
+#: rolls over; a shorter step and one more does.
+MAX_TRAVEL_FRACTION = 1.0
 #: s after the planned touch-down without one: balance is lost.
 TOUCHDOWN_TIMEOUT = 0.25
 #: m: the stance foot's heel or toe lifted this high during the swing loses balance (the swing
@@ -101,6 +129,18 @@ SWING_QP_PERIOD = 0.005
 #: The swing foot cannot land before this fraction of the planned swing (it starts on the
 #: ground).
 MIN_SWING_FRACTION = 0.5
+#: A swing foot on the ground has landed only when its sole centre is within
+#: LAND_TOLERANCE (m) of the planned landing or LAND_FRACTION of the planned swing has passed.
+LAND_TOLERANCE = 0.05
+LAND_FRACTION = 0.9
+#: rad: a swing foot lands when its heel or toe touches and it is pitched at most this much
+#: (a backward step meets the ground toe first; waiting for both heel and toe left the foot
+#: hovering a few mm up until the stance foot rolled over).
+LAND_PITCH = 0.1
+#: While the swing QP's planned normal force is below this fraction of the weight, it solves
+#: at every simulation step instead of every SWING_QP_PERIOD: a plan held over 5 ms with a
+#: small normal force lets the CoP run past the stance heel or toe.
+LOW_NORMAL_FORCE = 0.3
 #: s: the swing's support wrench may need a pulling ground this long before balance is lost
 #: (feet fixed: at once); a swing foot scuffing the ground (contacts the swing model does not
 #: have) gives such transients of a few ms.
@@ -158,12 +198,16 @@ class StepRecord:
     touchdown: float | None = None  # s
     length: float | None = None  # m, sole-centre displacement of the swing foot at touch-down
     land_x: float | None = None  # m, its sole centre at touch-down
+    planned_land_x: float | None = None  # m, where the last re-plan put it
     solves: list[tuple[float, float, float, float, float]] = field(default_factory=list)
     #: (t, planned CoP x, support lo, support hi, planned normal force N) per swing QP solve
     ik_error: list[tuple[float, float]] = field(default_factory=list)
     #: (t, |swing sole of the IK posture - planned position| m) per swing QP solve
     replans: list[tuple[float, float, float]] = field(default_factory=list)
     #: (t, landing x, capture point at touch-down) of every re-plan
+    tracking: list[tuple[float, float, float, float, float]] = field(default_factory=list)
+    #: (t, planned - actual swing sole x m, y m, swing foot pitch rad, IK - actual pelvis
+    #: angle rad) per swing QP solve
     stance_lift: float = 0.0  # m, the highest stance heel or toe during the swing
     push_estimate: float = 0.0  # m/s^2, the push estimate at lift-off
     c0: tuple[float, float] = (0.0, 0.0)  # m, the CM at lift-off
@@ -219,6 +263,11 @@ class _PlannedMomentum(MomentumController):
 
     accel = np.zeros(2)
     p_des = 0.0
+    #: The swing's task-space terms (H, g) added to the QP's cost (`extra_objective`).
+    task: tuple[np.ndarray, np.ndarray] | None = None
+
+    def extra_objective(self) -> tuple[np.ndarray, np.ndarray] | None:
+        return self.task
 
     def desired_rates(self, prm: ControllerParams, c: np.ndarray, cd: np.ndarray,
                       support: tuple[float, float], c_ref: tuple[float, float],
@@ -310,10 +359,14 @@ class SteppingController(Controller):
         self._cd_prev: float | None = None
         self._a_plan = 0.0  # m/s^2, the CM acceleration the last step's plan gave
         self._reach: float | None = None
+        #: rad: the root's (pelvis') angle at the clip's first step (standing).
+        self._upright: float | None = None
 
     def act(self, obs: Observation, t: float) -> np.ndarray:
         """Hinge torques for this step (see the module doc for the phases)."""
         self._observe_push(obs, t)
+        if self._upright is None:
+            self._upright = float(obs.q[2])
         if self.phase in ("feet_fixed", "pending"):
             tau = self._feet_fixed(obs, t)
             self._planned_accel(obs, self.feet_fixed.qdd, 0.0)
@@ -404,6 +457,14 @@ class SteppingController(Controller):
         self._reach = direction * max(direction * float(body_point(alpha, p, int(a.feet[f]),
                                                                    a.sole_local[f])[0])
                                       for f in self.support_feet)
+        if MAX_TRAVEL_FRACTION > 0.0:
+            # The swing foot travels at most MAX_TRAVEL_FRACTION leg lengths: the landing is
+            # limited from whichever of the stance foot's reach and the swing foot's start
+            # gives the nearer bound.
+            travel = MAX_TRAVEL_FRACTION * self.leg_length
+            if direction * (float(sole[0]) + direction * travel) < direction * (
+                    self._reach + direction * self._max_step()):
+                self._reach = float(sole[0]) + direction * (travel - self._max_step())
         plan = plan_step(t, obs.c, obs.cd, pivot, (float(sole[0]), float(sole[1])), direction,
                          prm.step_duration, prm.clearance, self._max_step(),
                          reach_from=self._reach, push=self.push)
@@ -420,6 +481,7 @@ class SteppingController(Controller):
         self._violations = 0
         self._pulling = 0
         self._b_L0 = 0.0
+        self._normal = math.inf  # N, the last swing solve's planned normal force
         self.swing_qp = self.swing_qps[sw]
         self.swing_qp.reset(None, None)
         self.swing_qp.p_des = pivot
@@ -437,6 +499,8 @@ class SteppingController(Controller):
             out.append(Target("angle", (ang,), b))
         pos, _v, _acc = plan.path.state(t)
         out.append(Target("cm", (float(pos[0]),)))
+        if self._upright is not None:
+            out.append(Target("angle", (self._upright,), 0))
         b = int(a.feet[self.swing])
         out.append(Target("point", plan.foot(t), b, tuple(a.sole_local[self.swing])))
         out.append(Target("angle", (0.0,), b))
@@ -458,7 +522,9 @@ class SteppingController(Controller):
         rec = self.steps[-1]
         a = self.arrays
         lo, hi = obs.support
-        if self._k % self.qp_every == 0:
+        m = self.character.total_mass
+        low = self._normal < LOW_NORMAL_FORCE * m * GRAVITY
+        if self._k % self.qp_every == 0 or low:
             if self._k > 0:  # a push may still act: the landing follows the measured CM
                 self._plan = replan_step(self._plan, t, obs.c, obs.cd, self._max_step(),
                                          self._reach, self.push)
@@ -488,6 +554,7 @@ class SteppingController(Controller):
             qdd_r[sw_leg] = ((SWING_STIFFNESS - sp.k_t) * (q_r[sw_leg] - hq[sw_leg])
                              + (SWING_DAMPING - sp.d_t) * (qd_r[sw_leg] - hqd[sw_leg]))
             self._ref.value = (q_r, qd_r, qdd_r)
+            self.swing_qp.task = self._task_terms(obs, t, ik_now.q, ik_next.q, h, rec)
             pos, vel, acc = plan.path.state(t)
             # The ground supplies the IPM's acceleration less the push's.
             self.swing_qp.accel = acc - np.array([plan.path.push, 0.0])
@@ -497,13 +564,13 @@ class SteppingController(Controller):
                                       (lo, hi), self.c_ref, (float(vel[0]), 0.0), lambda: bias)
             b_L, b_H, _b_S = bias
             self._b_L0 = float(b_L[0])
-            m = self.character.total_mass
             fxg = float(obs.A_L[0] @ qdd + b_L[0])
             fyg = float(obs.A_L[1] @ qdd + b_L[1] + m * GRAVITY)
             hdot = float(obs.A_H @ qdd + b_H)
             cop = (float(obs.c[0]) + (hdot - float(obs.c[1]) * fxg) / fyg if fyg > 0.0
                    else math.nan)
             rec.solves.append((t, cop, lo, hi, fyg))
+            self._normal = fyg
         self._k += 1
         plan = self._plan
         tau, code, _cop = checked_inverse_dynamics(obs.M, obs.h, obs.Js, self.swing_qp.qdd,
@@ -517,19 +584,66 @@ class SteppingController(Controller):
             self.lost = f"step_{WRENCH_REASONS[code]}"
         elif lift > STANCE_LIFT_LIMIT:
             self.lost = "step_foot_lift"
-        elif t - plan.t0 >= MIN_SWING_FRACTION * plan.duration and self._touching(obs):
+        elif t - plan.t0 >= MIN_SWING_FRACTION * plan.duration and self._touching(obs, t):
             self._land(obs, t)
         elif t - plan.t0 > plan.duration + TOUCHDOWN_TIMEOUT:
             self.lost = "step_no_touchdown"
         return tau
 
-    def _touching(self, obs: Observation) -> bool:
+    def _task_terms(self, obs: Observation, t: float, ik_now: np.ndarray, ik_next: np.ndarray,
+                    h: float, rec: StepRecord) -> tuple[np.ndarray, np.ndarray] | None:
+        """The swing QP's task-space terms: the swing foot's sole centre on its planned path
+        and flat, the pelvis at the IK posture's angle, each as a weighted least-squares row
+        w |J qdd + b - a_des|^2 with a_des = K (r_ref - r) + D (v_ref - v) + a_ref (J, b: the
+        swing foot's rows of the support Jacobian and their velocity-product terms)."""
+        if FOOT_WEIGHT <= 0.0 and FOOT_PITCH_WEIGHT <= 0.0 and PELVIS_WEIGHT <= 0.0:
+            return None
+        a = self.arrays
+        n = self.character.ndof
+        sw = self.swing
+        alpha, p, o = forward_kinematics(obs.q, a.parent, a.a_par, a.a_chi)
+        Js, _heel, _toe, sole = feet_terms(alpha, p, o, a.path, a.feet, a.sole_local,
+                                           a.heel_local, a.toe_local, n)
+        _bL, _bH, b_S = momentum_bias(obs.q, obs.qd, a.parent, a.a_par, a.a_chi, a.mass,
+                                      a.feet, a.sole_local)
+        J = Js[3 * sw:3 * sw + 3]
+        b = b_S[3 * sw:3 * sw + 3]
+        r = np.array([sole[sw][0], sole[sw][1], alpha[int(a.feet[sw])]])
+        v = J @ obs.qd
+        plan = self._plan
+        d = FOOT_PATH_STEP
+        f0, fp, fm = (np.array(plan.foot(u)) for u in (t, t + d, t - d))
+        r_ref = np.array([f0[0], f0[1], 0.0])
+        v_ref = np.array([*((fp - fm) / (2 * d)), 0.0])
+        a_ref = np.array([*((fp - 2 * f0 + fm) / (d * d)), 0.0])
+        a_des = SWING_STIFFNESS * (r_ref - r) + SWING_DAMPING * (v_ref - v) + a_ref
+        w = np.array([FOOT_WEIGHT, FOOT_WEIGHT, FOOT_PITCH_WEIGHT])
+        H = J.T @ (w[:, None] * J)
+        g = J.T @ (w * (a_des - b))
+        pel = (PELVIS_STIFFNESS * (ik_now[2] - obs.q[2])
+               + PELVIS_DAMPING * ((ik_next[2] - ik_now[2]) / h - obs.qd[2]))
+        H[2, 2] += PELVIS_WEIGHT
+        g[2] += PELVIS_WEIGHT * pel
+        rec.tracking.append((t, float(r_ref[0] - r[0]), float(r_ref[1] - r[1]), float(r[2]),
+                             float(ik_now[2] - obs.q[2])))
+        return H, g
+
+    def _touching(self, obs: Observation, t: float) -> bool:
+        """The swing foot has landed: its heel or toe on the ground (within TOUCHDOWN_HEIGHT),
+        pitched at most LAND_PITCH, and either near its planned landing (LAND_TOLERANCE) or
+        late in its swing (LAND_FRACTION): a foot that meets the ground early and short of its
+        plan (its heel striking, a scuff mid-swing) swings on."""
         a = self.arrays
         alpha, p, _o = forward_kinematics(obs.q, a.parent, a.a_par, a.a_chi)
         b = int(a.feet[self.swing])
         heel = body_point(alpha, p, b, a.heel_local[self.swing])
         toe = body_point(alpha, p, b, a.toe_local[self.swing])
-        return max(heel[1], toe[1]) <= TOUCHDOWN_HEIGHT
+        if min(heel[1], toe[1]) > TOUCHDOWN_HEIGHT or abs(float(alpha[b])) > LAND_PITCH:
+            return False
+        plan = self._plan
+        sole = body_point(alpha, p, b, a.sole_local[self.swing])
+        return (t - plan.t0 >= LAND_FRACTION * plan.duration
+                or abs(float(sole[0]) - plan.land[0]) <= LAND_TOLERANCE)
 
     def _land(self, obs: Observation, t: float) -> None:
         """Touch-down: both feet in stance; the feet-fixed controller takes over with the legs'
@@ -551,6 +665,7 @@ class SteppingController(Controller):
             if f == self.swing:
                 rec.length = float(sole[0] - rec.plan.start[0])
                 rec.land_x = float(sole[0])
+                rec.planned_land_x = float(self._plan.land[0])
         targets.append(Target("cm", (0.5 * (lo + hi),)))
         held = solve_ik(obs.q, a, self.character.limits, targets, self._leg_dofs())
         legs = [j for leg in self.legs for j in leg]

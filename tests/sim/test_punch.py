@@ -272,3 +272,40 @@ def test_same_miss_same_release(missed):
     assert first.objective == second.objective
     assert np.array_equal(first.traces.cm_ref, second.traces.cm_ref)
     assert first.frames.poses == second.frames.poses
+
+
+#: The CMRT `cmrt optimize examples/punch.yaml --workers 2 --seed 1` finds (its parameters, as
+#: the result file stores them): it leans the character into the punch and the hit stands.
+PUNCH_CMRT_SEED_1 = [0.7406339306613078, 0.4689900336941379, 0.343501918112419,
+                     0.022565540788515328, 0.6450109378234771, 0.8097795731263141,
+                     0.6316954975754943, 0.6463423716588379]
+
+
+def test_the_missed_punch_stumbles_and_recovers_by_stepping():
+    """Figure 11 bottom: with the hit's optimised CMRT, the hit stands (punch.yaml, the default
+    controller, unchanged); the miss (punch_miss.yaml, the step controller on) stumbles
+    forward and recovers with a forward step, standing to the clip's end; the same miss with
+    the feet kept planted falls forward before the miss is known (1.2 s)."""
+    from optim.spline import decode
+
+    hit = parse_spec(yaml.safe_load((EXAMPLES / "punch.yaml").read_text()))
+    miss_doc = yaml.safe_load((EXAMPLES / "punch_miss.yaml").read_text())
+    miss = parse_spec(miss_doc)
+    planted = parse_spec({**miss_doc, "controller": {"type": "momentum"}})
+    assert miss.controller.stepping and not hit.controller.stepping
+    outcomes = {}
+    for name, spec in (("hit", hit), ("miss", miss), ("planted", planted)):
+        sim = Rollout(spec)
+        try:
+            ev = sim.run(decode(spec, PUNCH_CMRT_SEED_1))
+            outcomes[name] = (ev, list(getattr(sim.controller, "steps", [])))
+        finally:
+            sim.close()
+    ev, _ = outcomes["hit"]
+    assert not ev.fell and ev.task_success
+    ev, steps = outcomes["planted"]
+    assert ev.fell and ev.fall_direction == "forward" and ev.fall_time < 1.2
+    ev, steps = outcomes["miss"]
+    assert not ev.fell and ev.task_success is False and ev.cmrt_released_at == pytest.approx(1.2)
+    assert steps and steps[0].direction == 1 and steps[0].length > 0.1
+    assert all(s.touchdown is not None for s in steps)

@@ -9,7 +9,13 @@ import pytest
 
 from sim.character import ROOT_DOF
 from sim.controllers.base import stance_terms
-from sim.controllers.stepping import FEET_FIXED_GAINS, SteppingController
+from sim.controllers.stepping import (
+    FEET_FIXED_GAINS,
+    LAND_FRACTION,
+    LAND_TOLERANCE,
+    TOUCHDOWN_TIMEOUT,
+    SteppingController,
+)
 from sim.dynamics import (
     GRAVITY,
     body_point,
@@ -284,8 +290,11 @@ def test_swing_qp_zmp_stays_inside_the_support_at_every_solve(stepped):
 
 def test_ipm_predicts_the_simulated_cm_path_of_a_small_step(stepped):
     """The IPM from the CM state at lift-off about the plan's pivot (the push is over by then,
-    so no push term) against ODE's CM over the swing: within 1.5 cm all along (measured
-    1.0 cm), and the CM's travel within 20 % (8.4 cm in ODE, 7.3 cm predicted)."""
+    so no push term) against ODE's CM over the whole swing (0.29 s): within 3.5 cm all along
+    (measured 3.0 cm), and the CM's travel within 45 % (10.4 cm in ODE, 7.5 cm predicted).
+    The swing QP's task-space rows (swing foot, pelvis) keep its CoP 1-3 cm behind the pivot,
+    so the CM runs ahead of the lift-off plan; the re-plans from the measured CM take it up
+    (the landing test below). Before those rows: 1.0 cm and 14 % (docs/physics.md)."""
     sim, ev = stepped
     rec = sim.controller.steps[0]
     t = np.asarray(ev.traces.t)
@@ -294,9 +303,51 @@ def test_ipm_predicts_the_simulated_cm_path_of_a_small_step(stepped):
                          rec.plan.duration, rec.start)
     pred = np.array([path.state(x)[0] for x in t[k]])
     cm = np.asarray(ev.traces.cm)[k]
-    assert np.abs(pred[:, 0] - cm[:, 0]).max() < 0.015
+    assert np.abs(pred[:, 0] - cm[:, 0]).max() < 0.035
     travel_sim, travel_ipm = cm[-1, 0] - cm[0, 0], pred[-1, 0] - pred[0, 0]
-    assert travel_sim > 0.05 and abs(travel_ipm / travel_sim - 1.0) < 0.2
+    assert travel_sim > 0.05 and abs(travel_ipm / travel_sim - 1.0) < 0.45
+
+
+def test_the_swing_lands_where_its_last_plan_put_it(stepped):
+    """The swing foot's sole lands within LAND_TOLERANCE (5 cm) of the landing its last
+    re-plan gave (measured 2.6 cm), having swung most of its planned time: no early heel
+    strike is taken for a landing."""
+    sim, _ev = stepped
+    rec = sim.controller.steps[0]
+    assert rec.touchdown is not None and rec.planned_land_x is not None
+    assert abs(rec.land_x - rec.planned_land_x) <= LAND_TOLERANCE
+    assert rec.touchdown - rec.start >= 0.8 * rec.plan.duration
+    # The tracking record: the sole on its path within 3 cm at every solve of the swing.
+    assert rec.tracking and max(abs(dx) for _t, dx, _dy, _p, _e in rec.tracking) < 0.03
+
+
+@pytest.mark.parametrize("direction", ["forward", "backward"])
+def test_fig7_push_is_survived_by_steps_that_land_where_planned(direction):
+    """The stepping paper's Fig. 7, 300 N for 0.4 s on the pelvis, both ways: survived by
+    stepping (forward 4 steps; backward 4 and a fifth, settling one still in the air when the
+    clip ends at 3.5 s). The first step lands within LAND_TOLERANCE of its
+    last plan (measured 1.0 cm forward, 2.3 cm backward; it used to land 0.35 m short
+    backward); every later one within it or after LAND_FRACTION of its swing."""
+    spec = {"name": "step", "clip": {"preparation": 1.0, "duration": 0.4, "decay": 2.1},
+            "task": {**PUSH, "force": 300.0, "direction": direction, "duration": 0.4},
+            "controller": {"type": "momentum", "stepping": True}}
+    sim = Rollout(parse_spec(spec))
+    try:
+        ev = sim.run(None)
+        steps = list(sim.controller.steps)
+    finally:
+        sim.close()
+    assert not ev.fell, ev.fall_reason
+    sign = 1 if direction == "forward" else -1
+    assert len(steps) >= 2 and steps[0].direction == sign
+    assert abs(steps[0].land_x - steps[0].planned_land_x) <= LAND_TOLERANCE
+    end = sim.spec.clip.length
+    for rec in steps:
+        if rec.touchdown is None:  # a settling step still in the air when the clip ends
+            assert rec.start > end - rec.plan.duration - TOUCHDOWN_TIMEOUT
+            continue
+        assert (abs(rec.land_x - rec.planned_land_x) <= LAND_TOLERANCE
+                or rec.touchdown - rec.start >= LAND_FRACTION * rec.plan.duration)
 
 
 def test_stepping_is_deterministic(stepped):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from cmrt.settings import Settings
-from worker.celery_app import TASK_EVALUATE, TASK_EVALUATE_BATCH, make_celery
+from worker.celery_app import TASK_EVALUATE_BATCH, make_celery
 from worker.executors import MIN_POLL_INTERVAL, CeleryExecutor, PollSchedule, plan_batches
 
 
@@ -19,13 +19,14 @@ def config(tmp_path):
 
 
 def test_evaluation_task_settings() -> None:
-    from worker.tasks import evaluate_candidate, evaluate_candidates
+    from worker.tasks import RETIRED_TASKS, app, evaluate_candidates
 
-    assert evaluate_candidate.name == TASK_EVALUATE
     assert evaluate_candidates.name == TASK_EVALUATE_BATCH
-    for task in (evaluate_candidate, evaluate_candidates):
-        assert task.acks_late and task.reject_on_worker_lost
-        assert task.ignore_result  # the driver reads the store, never a result
+    assert evaluate_candidates.acks_late and evaluate_candidates.reject_on_worker_lost
+    assert evaluate_candidates.ignore_result  # the driver reads the store, never a result
+    # the single-candidate task of the drivers before batches is not served any more
+    assert "cmrt.evaluate_candidate" in RETIRED_TASKS
+    assert not set(RETIRED_TASKS) & set(app.tasks)
 
 
 def test_app_settings_follow_the_design(config) -> None:
