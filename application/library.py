@@ -139,8 +139,10 @@ def neighbours_answer(
     extrapolate: bool = False,
     like: Callable[[CmrtKey], bool] | None = None,
 ) -> tuple[dict[str, Any], list[CmrtRecord]]:
-    """`interpolate_library`'s answer and the neighbouring library CMRTs it was built from
-    (lower first; one when the value is a member's)."""
+    """The CMRT of `family` interpolated at task parameter `key` = `value` among the library
+    CMRTs (optionally only those whose other task parameters equal `filters`, and those `like`
+    accepts), and the neighbouring library CMRTs it was built from (lower first; one when the
+    value is a member's)."""
     keys = [k for k in repo.cmrt_keys(family)[:MAX_MEMBERS] if k.has_spec]
     if like is not None:
         keys = [k for k in keys if like(k)]
@@ -181,23 +183,6 @@ def neighbours_answer(
         "vertical_values": d["vertical_values"],
         "curve": sample_curve(spline),
     }, recs
-
-
-def interpolate_library(
-    repo: Repository,
-    family: str,
-    key: str,
-    value: float,
-    *,
-    filters: Mapping[str, float] | None = None,
-    extrapolate: bool = False,
-    like: Callable[[CmrtKey], bool] | None = None,
-) -> dict[str, Any]:
-    """Interpolated CMRT of `family` at task parameter `key` = `value` among the library CMRTs
-    (optionally only those whose other task parameters equal `filters`, and those `like`
-    accepts)."""
-    return neighbours_answer(repo, family, key, value, filters=filters,
-                             extrapolate=extrapolate, like=like)[0]
 
 
 #: CMA-ES step (box units) of a job started from the library: the continuation members' warm
@@ -282,5 +267,5 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
 
 
 __all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "SWITCH_DISTANCE", "LibraryCmrt",
-           "import_family", "interpolate_library", "library_entry", "library_members",
+           "import_family", "library_entry", "library_members",
            "library_start", "neighbours_answer", "params_distance"]

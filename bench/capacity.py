@@ -49,6 +49,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bench.celery_throughput import _cpu  # the same CPU account
+
 ROOT = Path(__file__).resolve().parents[1]
 CMRT = ROOT / ".venv" / "bin" / "cmrt"
 #: PostgreSQL connections kept free beside the workers' (driver, scanner, this script).
@@ -61,20 +63,6 @@ def _port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
-
-
-def _cpu(pids: list[int]) -> float:
-    total = 0.0
-    for pid in pids:
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        total += (int(fields[11]) + int(fields[12])) * _TICK_S
-    return total
 
 
 def _children(pid: int) -> list[int]:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -41,3 +43,18 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 def atomic_write_text(path: str | Path, text: str) -> None:
     """`atomic_write_bytes` for UTF-8 text."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def read_json_file(path: str | Path, what: str) -> Any:
+    """The JSON document in `path`; ResultFileError naming the file when it cannot be read or
+    is not JSON (`what`: "result file", "basis file", ...)."""
+    from optim.errors import ResultFileError
+
+    p = Path(path)
+    try:
+        return json.loads(p.read_text())
+    except OSError as err:
+        raise ResultFileError(f"{p}: cannot read {what} ({err.strerror})") from None
+    except json.JSONDecodeError as err:
+        raise ResultFileError(f"{p}: not valid JSON ({err})") from None
+

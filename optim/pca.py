@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from optim._io import atomic_write_text
+from optim._io import atomic_write_text, read_json_file
 from optim.errors import BasisError, ResultFileError
 from sim.spec import CmrtConfig
 
@@ -236,14 +236,7 @@ class Basis:
 
     @classmethod
     def load(cls, path: str | Path) -> Basis:
-        p = Path(path)
-        try:
-            data = json.loads(p.read_text())
-        except OSError as err:
-            raise ResultFileError(f"{p}: cannot read basis file ({err.strerror})") from None
-        except json.JSONDecodeError as err:
-            raise ResultFileError(f"{p}: not valid JSON ({err})") from None
-        return cls.from_dict(data, str(p))
+        return cls.from_dict(read_json_file(path, "basis file"), str(path))
 
 
 # ---------------------------------------------------------------------------------------------

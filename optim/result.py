@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from optim._io import atomic_write_text
+from optim._io import atomic_write_text, read_json_file
 from optim.errors import ParamsError, ResultFileError
 from optim.spline import CmrtSpline, check_params, decode, sample_curve
 
@@ -350,16 +350,7 @@ class OptimizationResult:
     @classmethod
     def load(cls, path: str | Path) -> OptimizationResult:
         """Read and validate a result file (ResultFileError on any problem)."""
-        p = Path(path)
-        try:
-            text = p.read_text()
-        except OSError as err:
-            raise ResultFileError(f"{p}: cannot read result file ({err.strerror})") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ResultFileError(f"{p}: not valid JSON ({err})") from None
-        return cls.from_dict(data, str(p))
+        return cls.from_dict(read_json_file(path, "result file"), str(path))
 
 
 __all__ = ["RESULT_FORMAT", "OptimizationResult"]
@@ -371,12 +362,7 @@ def load_cmrt(path: str | Path) -> CmrtSpline:
     of which carries the decoded spline (`length`, `knot_times`, `values`, optional
     `vertical_values`). ResultFileError naming the file and the field otherwise."""
     p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except OSError as err:
-        raise ResultFileError(f"{p}: cannot read CMRT file ({err.strerror})") from None
-    except json.JSONDecodeError as err:
-        raise ResultFileError(f"{p}: not valid JSON ({err})") from None
+    data = read_json_file(p, "CMRT file")
     if isinstance(data, Mapping) and "spec" in data and "params" in data:
         return OptimizationResult.from_dict(data, str(p)).spline()
     if not isinstance(data, Mapping):

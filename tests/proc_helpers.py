@@ -4,6 +4,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import socket
 import subprocess
 
 #: s: how long a process group gets to finish after SIGTERM before it is killed.
@@ -25,3 +26,19 @@ def stop_group(proc: subprocess.Popen, grace: float = TERM_GRACE_S) -> None:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(KILL_WAIT_S)
+
+
+def free_port() -> int:
+    """A TCP port free on loopback now (for a server a test starts)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def tiny_bend(name: str, duration: float, optimize: dict) -> dict:
+    """A bend spec of a fraction of a second, for jobs that must end in seconds."""
+    return {"name": name, "family": "bend",
+            "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
+            "task": {"type": "pose_change", "target": {"waist": -30}},
+            "optimize": dict(optimize)}
+

@@ -10,7 +10,6 @@ import pty
 import re
 import select
 import signal
-import socket
 import subprocess
 import time
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 import httpx
 import pytest
 import yaml
+from proc_helpers import free_port, tiny_bend
 
 from cmrt.client import (
     Client,
@@ -37,16 +37,11 @@ TINY = {"popsize": 4, "max_evaluations": 12, "min_evaluations": 0}
 
 
 def bend(name: str, duration: float = 0.3) -> dict:
-    return {"name": name, "family": "bend",
-            "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
-            "task": {"type": "pose_change", "target": {"waist": -30}},
-            "optimize": dict(TINY)}
+    return tiny_bend(name, duration, TINY)
 
 
 def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port()
 
 
 def _env(**extra: str) -> dict[str, str]:

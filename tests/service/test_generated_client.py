@@ -10,7 +10,6 @@ import importlib
 import json
 import os
 import re
-import socket
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ from typing import Any
 
 import httpx
 import pytest
-from proc_helpers import stop_group
+from proc_helpers import free_port, stop_group, tiny_bend
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = ROOT / ".venv" / "bin"
@@ -36,16 +35,11 @@ CALM = {"name": "calm", "family": "calm", "task": {"type": "quiet_stance"},
 
 
 def bend(name: str, duration: float) -> dict[str, Any]:
-    return {"name": name, "family": "bend",
-            "clip": {"preparation": 0.3, "duration": duration, "decay": 0.2},
-            "task": {"type": "pose_change", "target": {"waist": -30}},
-            "optimize": dict(TINY)}
+    return tiny_bend(name, duration, TINY)
 
 
 def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port()
 
 
 @pytest.fixture(scope="module")
