@@ -226,7 +226,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
                 raise RuntimeError(f"worker exited: see {log.name}")
 
         repo.put_pending_evaluations(job.id, 0, [list(map(float, x)) for x in warm])
-        ex.evaluate(repo, job.id, s, 0, len(warm), check)
+        ex.evaluate(repo, job.id, 0, len(warm), check)
         generation = 0
 
         def backends() -> list[int]:
@@ -241,7 +241,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
             acct = _CpuAccount({"children": _children(proc.pid), "parent": [proc.pid],
                                 "redis": [scratch.redis.pid], "postgres": backends()})
             t0 = time.perf_counter()
-            rows = ex.evaluate(repo, job.id, s, generation, len(batch), check)
+            rows = ex.evaluate(repo, job.id, generation, len(batch), check)
             dt = time.perf_counter() - t0
             cpu = acct.stop()
             assert all(r.status == "done" for r in rows)

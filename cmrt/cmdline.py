@@ -14,7 +14,7 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 EXIT_BAD_INPUT = 2
@@ -81,3 +81,20 @@ def terminate_like_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def entry_point(prog: str, description: str,
+                add_arguments: Callable[[argparse.ArgumentParser], None],
+                run: Callable[[argparse.Namespace], int], argv: list[str] | None = None) -> int:
+    """`python -m PACKAGE [options]`: parse the options a command declares and run it as the
+    `cmrt` command does (SIGTERM as Ctrl-C, exit 130 when interrupted)."""
+    p = argparse.ArgumentParser(prog=prog, description=description)
+    add_arguments(p)
+    args = p.parse_args(argv)
+    quiet_plotting_warning()
+    try:
+        with terminate_like_interrupt():
+            return run(args)
+    except KeyboardInterrupt:
+        print("\ncmrt: interrupted", file=sys.stderr)
+        return 130

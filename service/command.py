@@ -5,16 +5,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 
-from cmrt.cmdline import (
-    die,
-    port,
-    positive_int,
-    process_settings,
-    quiet_plotting_warning,
-    terminate_like_interrupt,
-)
+from cmrt.cmdline import die, entry_point, port, positive_int, process_settings
 
 HELP = "run the HTTP API (embedded default: SQLite + local pool)"
 DESCRIPTION = ("Serve the CMRT HTTP API and its job drivers. Without CMRT_BROKER_URL it runs the "
@@ -57,13 +49,4 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m service [options]`: the same options and behaviour as `cmrt serve`."""
-    p = argparse.ArgumentParser(prog="python -m service", description=DESCRIPTION)
-    add_arguments(p)
-    args = p.parse_args(argv)
-    quiet_plotting_warning()
-    try:
-        with terminate_like_interrupt():
-            return run(args)
-    except KeyboardInterrupt:
-        print("\ncmrt: interrupted", file=sys.stderr)
-        return 130
+    return entry_point("python -m service", DESCRIPTION, add_arguments, run, argv)

@@ -4,9 +4,8 @@ candidates from the queue CMRT_QUEUE (needs CMRT_BROKER_URL)."""
 from __future__ import annotations
 
 import argparse
-import sys
 
-from cmrt.cmdline import die, positive_int, quiet_plotting_warning, terminate_like_interrupt
+from cmrt.cmdline import die, entry_point, positive_int
 
 HELP = "run a Celery evaluation worker (needs CMRT_BROKER_URL)"
 DESCRIPTION = ("Start a Celery worker evaluating CMRT candidates from the queue CMRT_QUEUE "
@@ -62,13 +61,4 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m worker [options]`: the same options and behaviour as `cmrt worker`."""
-    p = argparse.ArgumentParser(prog="python -m worker", description=DESCRIPTION)
-    add_arguments(p)
-    args = p.parse_args(argv)
-    quiet_plotting_warning()
-    try:
-        with terminate_like_interrupt():
-            return run(args)
-    except KeyboardInterrupt:
-        print("\ncmrt: interrupted", file=sys.stderr)
-        return 130
+    return entry_point("python -m worker", DESCRIPTION, add_arguments, run, argv)

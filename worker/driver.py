@@ -119,9 +119,8 @@ class StoreEvaluator:
     certain last may stop early (`optim.rankcut`) where the executor can; the final evaluation
     is never cut."""
 
-    def __init__(self, driver: JobDriver, spec: TaskSpec,
-                 cut_margin: float | None = None) -> None:
-        self.driver, self.spec, self.cut_margin = driver, spec, cut_margin
+    def __init__(self, driver: JobDriver, cut_margin: float | None = None) -> None:
+        self.driver, self.cut_margin = driver, cut_margin
 
     def evaluate(self, generation: int, candidates: Any) -> list[EvalOutcome]:
         d = self.driver
@@ -129,7 +128,7 @@ class StoreEvaluator:
         full = [list(map(float, p)) for p in candidates]
         d.repo.put_pending_evaluations(d.job_id, generation, full)
         cut = None if generation == FINAL_GENERATION else self.cut_margin
-        rows = d.executor.evaluate(d.repo, d.job_id, self.spec, generation, len(full), d.check,
+        rows = d.executor.evaluate(d.repo, d.job_id, generation, len(full), d.check,
                                    cut_margin=cut)
         if len(rows) != len(full):
             raise JobFailedError(f"generation {generation}: {len(rows)} evaluations stored for "
@@ -324,7 +323,7 @@ class JobDriver:
         if self._took_over is not None:
             self._log_takeover(opt.iterations)
         t_job = time.monotonic()
-        evaluator = StoreEvaluator(self, spec, opt.cut_margin)
+        evaluator = StoreEvaluator(self, opt.cut_margin)
         stop_rule = run_generations(opt, self.space, evaluator, state)
         # A driver may have died after adding the entry or the result: the final evaluations
         # are stored, so asking them again costs no simulation.

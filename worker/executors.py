@@ -32,7 +32,6 @@ from typing import Any
 from cmrt.settings import Settings
 from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
-from sim.spec import TaskSpec
 from store import EvaluationRecord, Repository
 from store.records import DONE, PENDING
 from worker.evaluation import (
@@ -65,16 +64,14 @@ class GenerationExecutor(ABC):
         self,
         repo: Repository,
         job_id: str,
-        spec: TaskSpec,
         generation: int,
         population: int,
         check: Checkpoint,
         cut_margin: float | None = None,
     ) -> list[EvaluationRecord]:
         """Resolve every pending evaluation of (job, generation); return them in index order.
-        `spec` is the job's parsed spec (the driver parses it once). `cut_margin`
-        (`optim.rankcut.cut_margin`; None: no cut) lets the generation's certain last candidate
-        stop early where the executor can (the run stays identical)."""
+        `cut_margin` (`optim.rankcut.cut_margin`; None: no cut) lets the generation's certain
+        last candidate stop early where the executor can (the run stays identical)."""
 
     def stats(self) -> dict[str, Any]:
         return {}
@@ -128,7 +125,7 @@ class LocalPoolExecutor(GenerationExecutor):
         self.cache = JobSpecs(objective_factory)
         self.node = f"{socket.gethostname()}/local-pool"
 
-    def evaluate(self, repo, job_id, spec, generation, population, check, cut_margin=None):
+    def evaluate(self, repo, job_id, generation, population, check, cut_margin=None):
         """Rounds of `run_candidates` over the pending candidates until none is left (a
         candidate whose process died stays pending and is claimed again, its attempts counted).
         The cut needs every other candidate's value: the stored ones are passed along."""
@@ -344,7 +341,7 @@ class CeleryExecutor(GenerationExecutor):
         except self._errors as err:  # the claims skip them anyway (the job is terminal)
             log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
 
-    def evaluate(self, repo, job_id, spec, generation, population, check, cut_margin=None):
+    def evaluate(self, repo, job_id, generation, population, check, cut_margin=None):
         """Send the unresolved candidates, at most `dispatch_window` unresolved at a time (so
         jobs share the queue fairly), and wait for the store to hold all their results.
 
