@@ -38,7 +38,13 @@ import numpy as np
 
 from application import jobs
 from application.admission import default_popsize
-from application.library import SWITCH_DISTANCE, neighbours_answer, params_distance
+from application.library import (
+    SWITCH_DISTANCE,
+    LibraryCmrt,
+    nearer,
+    neighbours_answer,
+    params_distance,
+)
 from cmrt.canonical import text_hash
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
@@ -115,16 +121,31 @@ def serve(
     """The library's answer at `key` = `value` (module docstring); simulated and checked
     when `simulate` is given. InterpolationError when the library cannot interpolate there
     (range, family, parameter); AnswerError for a spec the value makes invalid."""
+    return _serve(repo, family, key, value, filters=filters, extrapolate=extrapolate,
+                  simulate=simulate)[0]
+
+
+def _serve(
+    repo: Repository,
+    family: str,
+    key: str,
+    value: float,
+    *,
+    filters: Mapping[str, float] | None,
+    extrapolate: bool,
+    simulate: Simulate | None,
+) -> tuple[dict[str, Any], list[CmrtRecord]]:
+    """`serve`'s answer and the neighbouring library CMRTs it read."""
     base, recs = neighbours_answer(repo, family, key, value, filters=filters,
                                    extrapolate=extrapolate)
     switch = _switch(recs, key) if not base["exact"] and len(recs) == 2 else None
     interp = _answer_spline(base)
-    near = _nearer(recs, key, value)
+    near = nearer(recs, key, value)
     if base["exact"]:
-        primary = _Candidate(_member_source(repo, recs[0]), [recs[0]], _spline_of(recs[0]))
+        primary = _Candidate(_member_source(repo, recs[0]), [recs[0]], _member_spline(recs[0]))
         why = f"the library holds a CMRT optimised at {key} = {value:g}"
     elif switch is not None and switch["detected"]:
-        primary = _Candidate("member", [near], _spline_of(near))
+        primary = _Candidate("member", [near], _member_spline(near))
         why = (f"a strategy switch lies between the members at {key} = "
                f"{switch['between'][0][key]:g} and {switch['between'][1][key]:g} (their "
                f"CMRTs are {switch['distance']:.2f} apart, above {SWITCH_DISTANCE:g}): the "
@@ -145,17 +166,18 @@ def serve(
         outcome=None,
         tried=[],
     )
-    _set_candidate(out, primary)
+    # the interpolation's curve is already sampled: not again on the plain path
+    _set_candidate(out, primary, base["curve"] if primary.spline is interp else None)
     if simulate is None:
         out["message"] = why + "; not simulated (verify=true simulates it once)"
-        return out
+        return out, recs
     spec = _spec_at(near, key, value, filters)
     cands = [primary]
     tried = [_verify(repo, family, spec, primary, simulate)]
     if not _good(tried[0], out["predicted_objective"]):
         # the neighbours as they are; across a switch also their average, which is never
         # served unsimulated there but may, simulated, be the best the library has
-        others = [_Candidate("member", [r], _spline_of(r))
+        others = [_Candidate("member", [r], _member_spline(r))
                   for r in sorted(recs, key=lambda r: abs(r.task_parameters[key] - value))]
         if primary.source != "interpolated" and not base["exact"] and len(recs) == 2:
             others.append(_Candidate("interpolated", recs, interp))
@@ -166,11 +188,11 @@ def serve(
             tried.append(_verify(repo, family, spec, c, simulate))
     i = min(range(len(tried)), key=lambda j: _rank(tried[j]))
     best = tried[i]
-    _set_candidate(out, cands[i])
+    _set_candidate(out, cands[i], base["curve"] if cands[i].spline is interp else None)
     out.update(verified=True, outcome=best["outcome"], tried=tried,
                verdict=_verdict(best, out["predicted_objective"]))
     out["message"] = _message(why, out, best, tried, key, value)
-    return out
+    return out, recs
 
 
 def refine_job(
@@ -191,7 +213,8 @@ def refine_job(
     when the library kept one), under `max_evaluations`. Its result joins the library as a
     member. Returns the job, its admitted budget and the answer it started from. AnswerError
     naming `basis` when the family has none; InterpolationError as `serve`."""
-    answer = serve(repo, family, key, value, filters=filters, extrapolate=extrapolate)
+    answer, recs = _serve(repo, family, key, value, filters=filters, extrapolate=extrapolate,
+                          simulate=None)
     if basis_id is None:
         bases, _ = repo.list_bases(family, limit=1)
         if not bases:
@@ -199,25 +222,24 @@ def refine_job(
                 f"basis: family {family!r} has no PCA basis to refine in; build one first "
                 f"(POST /bases with {{\"family\": \"{family}\"}}, or `cmrt library basis --family "
                 f"{family}`)")
-        basis_id = bases[0].id
+        basis = bases[0]
     else:
         try:
-            if repo.get_basis(basis_id).family != family:
-                raise AnswerError(f"basis: {basis_id!r} is not a basis of family {family!r}")
+            basis = repo.get_basis(basis_id)
         except NotFound:
             raise AnswerError(f"basis: no basis {basis_id!r}") from None
-    recs = [repo.get_cmrt(n["id"]) for n in answer["neighbours"]]
-    spec = _spec_at(_nearer(recs, key, value), key, value, filters)
+        if basis.family != family:
+            raise AnswerError(f"basis: {basis_id!r} is not a basis of family {family!r}")
+    spec = _spec_at(nearer(recs, key, value), key, value, filters)
     served = _Candidate(answer["source"], [r for r in recs if r.id in answer["members"]],
                         _answer_spline(answer))
-    cands = [served] + [_Candidate("member", [r], _spline_of(r)) for r in recs]
+    cands = [served] + [_Candidate("member", [r], _member_spline(r)) for r in recs]
     if not answer["exact"] and len(recs) == 2:
         cands.append(_Candidate("interpolated", recs, _answer_spline(answer["interpolation"])))
     start_from = _best_cached(repo, spec, cands) or served
     # Whole generations within the budget: CMA-ES stops between generations, so a cap that is
     # not a multiple of the population would be passed by up to one generation.
-    k = repo.get_basis(basis_id).k
-    popsize = spec.spec.optimize.popsize or default_popsize(k)
+    popsize = spec.spec.optimize.popsize or default_popsize(basis.k)
     cap = min(max_evaluations, spec.spec.optimize.max_evaluations)
     cap = max(popsize, cap // popsize * popsize)
     typed = spec.spec.model_copy(update={"optimize": spec.spec.optimize.model_copy(update={
@@ -227,24 +249,18 @@ def refine_job(
     x0 = [float(v) for v in encode(canonical.spec, start_from.spline)]
     start = {
         "kind": "refine",
-        "from": (f"refinement in basis {basis_id} at {key} = {value:g}, started at the "
+        "from": (f"refinement in basis {basis.id} at {key} = {value:g}, started at the "
                  f"{start_from.source} answer of " + ", ".join(start_from.ids)),
         "x0": x0, "sigma0": REFINE_SIGMA0, "cmrts": start_from.ids,
     }
-    job, budget = jobs.submit_job(repo, settings, canonical, seed=seed, basis_id=basis_id,
+    job, budget = jobs.submit_job(repo, settings, canonical, seed=seed, basis_id=basis.id,
                                   start=start)
     return job, budget, answer
 
 
 # ---- the pieces ---------------------------------------------------------------------------
-def _spline_of(rec: CmrtRecord) -> CmrtSpline:
-    values, vertical = rec.values, None
-    if values and isinstance(values[0], list | tuple):
-        vertical = np.asarray([float(v[1]) for v in values])
-        values = [v[0] for v in values]
-    return CmrtSpline(rec.preparation + rec.duration + rec.decay,
-                      np.asarray(rec.knots, dtype=float), np.asarray(values, dtype=float),
-                      vertical)
+def _member_spline(rec: CmrtRecord) -> CmrtSpline:
+    return LibraryCmrt.of(rec).spline()
 
 
 def _answer_spline(d: Mapping[str, Any]) -> CmrtSpline:
@@ -255,15 +271,17 @@ def _answer_spline(d: Mapping[str, Any]) -> CmrtSpline:
                       else np.asarray(d["vertical_values"], dtype=float))
 
 
-def _set_candidate(out: dict[str, Any], c: _Candidate) -> None:
-    """The answer's curve fields and provenance from candidate `c`."""
+def _set_candidate(out: dict[str, Any], c: _Candidate,
+                   curve: dict[str, list[float]] | None = None) -> None:
+    """The answer's curve fields and provenance from candidate `c` (`curve`: its sampled
+    curve when already at hand)."""
     s = c.spline
     out.update(
         source=c.source, members=c.ids, length=float(s.length),
         knot_times=[float(v) for v in s.knot_times], values=[float(v) for v in s.values],
         vertical_values=None if s.vertical_values is None
         else [float(v) for v in s.vertical_values],
-        curve=sample_curve(s),
+        curve=sample_curve(s) if curve is None else curve,
     )
 
 
@@ -287,10 +305,6 @@ def _switch(recs: list[CmrtRecord], key: str) -> dict[str, Any]:
     return {"detected": bool(distance > SWITCH_DISTANCE), "distance": distance,
             "threshold": SWITCH_DISTANCE, "knot_shift": float(shift),
             "between": [{"id": r.id, key: r.task_parameters[key]} for r in recs]}
-
-
-def _nearer(recs: list[CmrtRecord], key: str, value: float) -> CmrtRecord:
-    return min(recs, key=lambda r: (abs(r.task_parameters[key] - value), r.objective))
 
 
 def _predicted(base: dict[str, Any], recs: list[CmrtRecord]) -> float:

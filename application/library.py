@@ -28,6 +28,11 @@ MAX_MEMBERS = 10_000
 SWITCH_DISTANCE = 0.15
 
 
+def nearer(recs: list[CmrtRecord], key: str, value: float) -> CmrtRecord:
+    """The library CMRT nearest `value` along `key` (on a tie, the lower objective)."""
+    return min(recs, key=lambda r: (abs(r.task_parameters[key] - value), r.objective))
+
+
 def params_distance(a: CmrtRecord, b: CmrtRecord) -> float:
     """RMS distance of two library CMRTs' spline parameters (box units); inf for two layouts."""
     x, y = np.asarray(a.params, dtype=float), np.asarray(b.params, dtype=float)
@@ -224,8 +229,7 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
             a, b = recs
             distance = params_distance(a, b)
             if distance > SWITCH_DISTANCE:
-                near = min((a, b), key=lambda r: (abs(r.task_parameters[key] - params[key]),
-                                                  r.objective))
+                near = nearer(recs, key, params[key])
                 spline = LibraryCmrt.of(near).spline()
                 ids = [near.id]
                 what = (f"library CMRT {near.id} ({key} = {near.task_parameters[key]:g}), the "
@@ -268,4 +272,4 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
 
 __all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "SWITCH_DISTANCE", "LibraryCmrt",
            "import_family", "library_entry", "library_members",
-           "library_start", "neighbours_answer", "params_distance"]
+           "library_start", "nearer", "neighbours_answer", "params_distance"]
