@@ -106,7 +106,7 @@ def query_point(repo: Any, family: str, params: dict[str, float], along: str | N
 
 def _refine_offer(request: Request, out: dict[str, Any]) -> dict[str, Any] | None:
     """How to ask for a refinement where the answer is not a good one."""
-    if out["verdict"] == "good" or out["source"] != "interpolated" and out["exact"]:
+    if out["verdict"] == "good" or out["exact"]:  # a member optimised there: nothing to refine
         return None
     params = {out["key"]: out["value"]}
     return {"method": "POST", "url": url_for(request, "refine_cmrt"),
