@@ -172,8 +172,10 @@ class Physics:
         self.contact_group = ode.JointGroup()
         self.contacts: list[tuple[ode.ContactJoint, int, float]] = []
         self._contact = _foot_contact()
-        self.q = np.zeros(character.ndof)
-        self.qd = np.zeros(character.ndof)
+        #: q then qd, read from ODE by `read_state`; `q` and `qd` are views of it.
+        self._state = np.zeros(2 * character.ndof)
+        self.q, self.qd = self._state[:character.ndof], self._state[character.ndof:]
+        self._root = self.bodies[0]
         self._build_collision_space()
         self._build_props(props)
         #: Joints made at run time (a catch's weld, a chain's hinges): (joint, prop name,
@@ -358,22 +360,23 @@ class Physics:
         self.read_state()
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """Read q, qd from ODE: root CoM, root angle, then hinge angles and rates."""
-        root = self.bodies[0]
+        """Read q, qd from ODE: root CoM, root angle, then hinge angles and rates. The same
+        two arrays (`q`, `qd`) every call, overwritten."""
+        root = self._root
         x, y, _ = root.getPosition()
         R = root.getRotation()
         vx, vy, _ = root.getLinearVel()
-        q, qd = self.q, self.qd
-        q[0], q[1], q[2] = x, y, math.atan2(R[3], R[0])
-        qd[0], qd[1], qd[2] = vx, vy, root.getAngularVel()[2]
-        angles = list(map(_GET_ANGLE, self.hinges))  # no Python loop: ~1.2 us a step
+        hinges = self.hinges
+        # One list of q and qd written into their one buffer: a single conversion per step
+        # (~0.5 us less than element and slice writes); `map` reads the hinges without a
+        # Python loop.
+        state = [x, y, math.atan2(R[3], R[0]), *map(_GET_ANGLE, hinges),
+                 vx, vy, root.getAngularVel()[2], *map(_GET_ANGLE_RATE, hinges)]
         for i, zero in self.hinge_zeros:
-            # Python's float sum is numpy's float64 sum (the same bits), without an array
-            # element read and write per moved zero.
-            angles[i] += zero
-        q[ROOT_DOF:] = angles
-        qd[ROOT_DOF:] = list(map(_GET_ANGLE_RATE, self.hinges))
-        return q, qd
+            # Python's float sum is numpy's float64 sum (the same bits).
+            state[ROOT_DOF + i] += zero
+        self._state[:] = state
+        return self.q, self.qd
 
     def pose_names(self) -> list[str]:
         """Names of the rows of `poses()`: the character's bodies, then props (and links)."""
