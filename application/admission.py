@@ -25,16 +25,8 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from cmrt.settings import Settings
-from optim.family import (
-    MAIN,
-    MEMBER,
-    PROBES,
-    REDUCED,
-    WARM,
-    FamilySpec,
-    member_spec,
-    plan_runs,
-)
+from optim.family.plan import MEMBER, PROBES, REDUCED, plan_runs
+from optim.family.spec import MAIN, WARM, FamilySpec, member_spec
 from sim.spec import TaskSpec
 
 #: Evaluations added to the cap: the final flat-spline and best-candidate re-evaluation.

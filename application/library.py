@@ -191,7 +191,7 @@ def neighbours_answer(
 
 
 #: CMA-ES step (box units) of a job started from the library: the continuation members' warm
-#: sigma (optim.family.WarmConfig), small enough to stay on the neighbours' branch of optima.
+#: sigma (optim.family.spec.WarmConfig), small enough to stay on the neighbours' branch of optima.
 LIBRARY_WARM_SIGMA0 = 0.05
 
 

@@ -31,14 +31,9 @@ import numpy as np
 
 from application.library import LIBRARY_WARM_SIGMA0, import_family, library_start
 from optim.executors import PoolExecutor
-from optim.family import (
-    converged_at,
-    evaluations_to_reach,
-    member_spec,
-    parse_family,
-    plan_runs,
-    reference_run_id,
-)
+from optim.family.checks import converged_at, evaluations_to_reach
+from optim.family.plan import plan_runs, reference_run_id
+from optim.family.spec import member_spec, parse_family
 from optim.run import optimize
 from store import open_repository
 

@@ -49,7 +49,7 @@ def _pairs(items: list[str] | None, option: str, keys: tuple[str, ...]) -> dict[
 
 
 def family_request(args: argparse.Namespace) -> dict[str, Any]:
-    """The family mapping (optim.family.parse_family's input) from the command line."""
+    """The family mapping (optim.family.spec.parse_family's input) from the command line."""
     from sim.errors import SpecError
 
     path = Path(args.spec)
@@ -97,7 +97,8 @@ def cmd_family_run(args: argparse.Namespace) -> int:
     from cmrt.cmdline import die
     from optim._io import atomic_write_text
     from optim.executors import PoolExecutor
-    from optim.family import family_report, format_tables, parse_family
+    from optim.family.report import format_tables
+    from optim.family.spec import parse_family
     from optim.family_run import run_family
 
     try:
@@ -126,7 +127,7 @@ def cmd_family_run(args: argparse.Namespace) -> int:
         "note": "wall and CPU seconds of this command only (a resumed family's earlier "
                 "commands not included); CPU: this process and its pool's workers",
     }}
-    report = family_report(fs, outcome.results, outcome.probes, extra)
+    report = {**outcome.report, **extra}
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, json.dumps(report, indent=1, allow_nan=False) + "\n")
     if args.json:
@@ -140,8 +141,9 @@ def cmd_family_run(args: argparse.Namespace) -> int:
 
 
 def _family_lines(d: dict[str, Any]) -> list[str]:
-    """A family's state in a few lines; once done, its tables (optim.family.format_tables)."""
-    from optim.family import format_tables
+    """A family's state in a few lines; once done, its tables
+    (optim.family.report.format_tables)."""
+    from optim.family.report import format_tables
 
     p = d.get("progress") or {}
     lines = [f"family {d['id']} {d['status']}: {d['family']} along {d['param']}, "

@@ -11,7 +11,10 @@ Modules:
     optim.pca          PCA basis of a family of results, reduced-space search
     optim.interpolate  interpolation of results along a task parameter
     optim.superpose    superposition of time-shifted CMRTs
-    optim.family       families along a task parameter: spec, plan of runs, Table 2 checks
-    optim.family_run   a family run in this process over one shared pool (resumable)
+    optim.family       families along a task parameter: the request (.spec), the plan of runs
+                       (.plan), Table 2 checks (.checks), the document (.report) and the one
+                       state machine both drivers run (.machine)
+    optim.family_run   the command line's family driver: this process, one shared pool,
+                       resumable
     optim.errors       domain exceptions
 """

@@ -93,7 +93,7 @@ class SpecCache:
 
     def typed(self, hash: str, load: Callable[[], Any]) -> Any:
         """Any other typed document kept under its hash (a family request: its
-        `optim.family.FamilySpec`); `load()` runs only on a miss."""
+        `optim.family.spec.FamilySpec`); `load()` runs only on a miss."""
         return self._entry(hash, load).canonical
 
     def stored(self, document: Mapping[str, Any], hash: str, source: str = "<spec>"

@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from optim.family import FamilySpec
+from optim.family.spec import FamilySpec
 from service.links import SIGNABLE
 from sim.spec import TaskSpec
 

@@ -211,7 +211,7 @@ class FamilyRecord:
     id: str
     family: str
     param: str
-    #: The family request (optim.family.FamilySpec JSON form).
+    #: The family request (optim.family.spec.FamilySpec JSON form).
     spec: dict[str, Any]
     #: SHA-256 of the request's canonical text (cmrt.canonical).
     spec_hash: str

@@ -1,21 +1,25 @@
-"""The family driver: a family's plan (optim.family) run as ordinary jobs of the service.
+"""The family driver: the service's driver of the family state machine
+(`optim.family.machine`), whose runs are ordinary jobs of the service.
 
 `FamilyDriver.advance(family_id)` is one idempotent step, made every scan by the runner of
-every unfinished family:
+every unfinished family: it reads the family's state from the store and asks
+`optim.family.machine.next_actions`, then carries the actions out:
 
-    read the family's request and its runs' jobs (store)
-    a run whose job failed or was cancelled (not by the family) -> the family fails, naming it
-    cancel requested -> cancel every unfinished job of the family; `cancelled` once none runs
-    every finished job's result document -> optim.family results (run id -> result)
-    each ready run (`optim.family.ready_runs`: its warm start or its members exist) -> its job,
-        created at most once (`add_family_run`): the run's spec and seed, its start point
-        (`start`: {"from": ..., "x0": ...}) and, for a reduced run, the leave-one-out basis
-        stored as a PCA basis; the job is handed to `submit` so a driver starts at once
-    the probes (the interpolated CMRT at each interior value, once every member exists):
-        handed to a thread of the driver's own, evaluated there in a process of their own;
-        a later step picks their outcomes up and keeps them with the family (the step never
-        waits for them, so no other family's step waits either)
-    every run finished -> `optim.family.family_report` kept as the family's report; `done`
+    the state: the family's request and its runs' jobs; a job that failed or was cancelled
+        (not by the family) is a failed run (its error the reason); the finished jobs'
+        result documents are the results (run id -> result); the probes' outcomes once kept
+        with the family, or once the driver's probe thread has them (then kept)
+    Cancel -> cancel every unfinished job of the family; `cancelled` once none runs
+    Fail -> cancel the others, the family fails naming the run and its job
+    StartRun -> its job, created at most once (`add_family_run`): the run's spec and seed, its
+        start point (`start`: {"from": ..., "x0": ...}) and, for a reduced run, the
+        leave-one-out basis stored as a PCA basis; the job is handed to `submit` so a driver
+        starts at once
+    EvaluateProbes -> handed to a thread of the driver's own, evaluated there in a process of
+        their own; a later step picks their outcomes up (the step never waits for them, so no
+        other family's step waits either)
+    Finish -> the family's document (`optim.family.report.family_report`, with the family's
+        id and jobs) kept as its report; `done`
 
 The same plan, starts, seeds and stopping rules as `cmrt family run` (optim.family_run), and
 a job's result document is the command line's (`optim.run.result_of`), so a family run here
@@ -30,7 +34,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -39,17 +43,9 @@ from application.bases import store_basis
 from application.families import family_spec
 from optim.errors import EvaluationError, OptimError
 from optim.executors import Executor, PoolExecutor
-from optim.family import (
-    PROBES,
-    FamilyError,
-    FamilySpec,
-    family_members,
-    family_report,
-    plan_runs,
-    probe_points,
-    ready_runs,
-    run_start,
-)
+from optim.family import machine
+from optim.family.plan import PlannedRun, RunStart
+from optim.family.spec import FamilyError, FamilySpec
 from optim.family_run import default_objective
 from optim.objective import SPECS
 from optim.outcome import EvalOutcome
@@ -125,7 +121,7 @@ class FamilyDriver:
             log.error("family %s: %s", family_id, err)
             with self._lock:
                 self._forget(family_id)
-                self._cancel_jobs(self.repo.family_jobs(family_id))
+                self._cancel_jobs(self.repo.family_jobs(family_id).values())
                 return self.repo.finish_family(family_id, FAILED, error=str(err)).status
 
     def _advance(self, family_id: str) -> str:
@@ -139,36 +135,57 @@ class FamilyDriver:
             except FamilyError as err:
                 self._forget(family_id)
                 return self.repo.finish_family(family_id, FAILED, error=str(err)).status
-            runs = plan_runs(fs)
             jobs = self.repo.family_jobs(family_id)
-            if fam.cancel_requested:
-                return self._cancel(family_id, jobs)
-            for run_id, job in jobs.items():
-                if job.status in (FAILED, CANCELLED):
-                    why = job.error or job.status
-                    log.error("family %s: run %s (job %s) %s", family_id, run_id, job.id, why)
-                    self._cancel_jobs(jobs)
-                    self._forget(family_id)
-                    return self.repo.finish_family(
-                        family_id, FAILED, error=f"run {run_id} (job {job.id}): {why}").status
-            results = self._finished(family_id, jobs)
-            probes = self._stored_probes(family_id)
-            done = set(results) | ({PROBES} if probes is not None else set())
-            running = {rid for rid, j in jobs.items() if rid not in results}
-            for run in ready_runs(runs, done, running):
-                if run.kind == PROBES:
-                    probes = self._probes(family_id, fs, runs, results)
-                    if probes is not None:
-                        done.add(PROBES)
-                    continue
-                self._start(family_id, fs, run, runs, results)
-            if all(r.id in done for r in runs):
-                report = family_report(fs, results, probes,
-                                       extra={"family_id": family_id,
-                                              "jobs": {k: j.id for k, j in jobs.items()}})
-                self._forget(family_id)
-                return self.repo.finish_family(family_id, FAMILY_DONE, report=report).status
+            state = self._state(family_id, fam.cancel_requested, jobs)
+            for action in machine.next_actions(fs, state):
+                status = self._carry_out(family_id, fs, jobs, state, action)
+                if status is not None:
+                    return status
             return fam.status
+
+    def _state(self, family_id: str, cancel_requested: bool, jobs: dict[str, Any]
+               ) -> machine.FamilyState:
+        """The family's state from its jobs, their result documents and its probes."""
+        failed = {rid: job.error or job.status for rid, job in jobs.items()
+                  if job.status in (FAILED, CANCELLED)}
+        if cancel_requested or failed:  # it ends now: its results and probes are not read
+            return machine.FamilyState(running=frozenset(jobs.keys() - failed.keys()),
+                                       failed=failed, cancel_requested=cancel_requested)
+        results = self._finished(family_id, jobs)
+        probes = self._stored_probes(family_id)
+        if probes is None:
+            probes = self._evaluated_probes(family_id)
+        return machine.FamilyState(results, frozenset(jobs.keys() - results.keys()), probes,
+                                   family_id in self._probing)
+
+    def _carry_out(self, family_id: str, fs: FamilySpec, jobs: dict[str, Any],
+                   state: machine.FamilyState, action: machine.Action) -> str | None:
+        """One action of the state machine; the family's status when the step ends here."""
+        if isinstance(action, machine.StartRun):
+            self._start(family_id, fs, action.run, action.start, state.results)
+        elif isinstance(action, machine.EvaluateProbes):
+            self._hand_probes(family_id, fs, action.points)
+        elif isinstance(action, machine.Finish):
+            self._forget(family_id)
+            report = {**action.report, "family_id": family_id,
+                      "jobs": {k: j.id for k, j in jobs.items()}}
+            return self.repo.finish_family(family_id, FAMILY_DONE, report=report).status
+        elif isinstance(action, machine.Fail):
+            job = jobs[action.run_id]
+            log.error("family %s: run %s (job %s) %s", family_id, action.run_id, job.id,
+                      action.reason)
+            self._cancel_jobs([jobs[r] for r in action.stop])
+            self._forget(family_id)
+            return self.repo.finish_family(
+                family_id, FAILED, error=f"run {action.run_id} (job {job.id}): {action.reason}"
+            ).status
+        elif isinstance(action, machine.Cancel):
+            live = self._cancel_jobs([jobs[r] for r in action.stop])
+            if any(not self.repo.get_job(j.id).terminal for j in live):
+                return self.repo.get_family(family_id).status  # their drivers stop them
+            self._forget(family_id)
+            return self.repo.finish_family(family_id, CANCELLED).status
+        return None
 
     # -- pieces --------------------------------------------------------------------------------
     def _forget(self, family_id: str) -> None:
@@ -179,18 +196,11 @@ class FamilyDriver:
         if fut is not None:
             fut.cancel()
 
-    def _cancel_jobs(self, jobs: dict[str, Any]) -> list[Any]:
-        live = [j for j in jobs.values() if not j.terminal]
+    def _cancel_jobs(self, jobs: Iterable[Any]) -> list[Any]:
+        live = [j for j in jobs if not j.terminal]
         for j in live:
             self.repo.request_cancel(j.id)
         return live
-
-    def _cancel(self, family_id: str, jobs: dict[str, Any]) -> str:
-        live = self._cancel_jobs(jobs)
-        if any(not self.repo.get_job(j.id).terminal for j in live):
-            return self.repo.get_family(family_id).status  # their drivers stop them
-        self._forget(family_id)
-        return self.repo.finish_family(family_id, CANCELLED).status
 
     def _finished(self, family_id: str, jobs: dict[str, Any]) -> dict[str, OptimizationResult]:
         cache = self._results.setdefault(family_id, {})
@@ -205,9 +215,8 @@ class FamilyDriver:
             return None
         return {float(v): EvalOutcome.from_dict(o) for v, o in raw}
 
-    def _start(self, family_id: str, fs: FamilySpec, run: Any, runs: list[Any],
-               results: dict[str, OptimizationResult]) -> None:
-        st = run_start(fs, run, runs, results)
+    def _start(self, family_id: str, fs: FamilySpec, run: PlannedRun, st: RunStart,
+               results: Mapping[str, OptimizationResult]) -> None:
         basis_id = None if st.basis is None else store_basis(
             self.repo, st.basis, fs.family,
             [f"{family_id}/{rid}" for rid in sorted(results) if rid != run.id])
@@ -224,23 +233,22 @@ class FamilyDriver:
         if not job.terminal:
             self.submit(job.id)
 
-    def _probes(self, family_id: str, fs: FamilySpec, runs: list[Any],
-                results: dict[str, OptimizationResult]) -> dict[float, EvalOutcome] | None:
-        """The probes' outcomes once evaluated (then kept with the family), else None: their
-        evaluation is handed to the probe thread at the first call and picked up by a later
-        one. An evaluation that failed is raised here, as it would have been in this step."""
+    def _hand_probes(self, family_id: str, fs: FamilySpec,
+                     points: Sequence[tuple[float, np.ndarray]]) -> None:
+        """Hand the probes' evaluation to the probe thread; a later step picks it up."""
+        if self._probe_thread is None:
+            self._probe_thread = cf.ThreadPoolExecutor(max_workers=1,
+                                                       thread_name_prefix="family-probes")
+        self._probing[family_id] = self._probe_thread.submit(self._evaluate_probes, fs,
+                                                             list(points))
+        log.info("family %s: evaluating %d probes", family_id, len(points))
+
+    def _evaluated_probes(self, family_id: str) -> dict[float, EvalOutcome] | None:
+        """The probes' outcomes once the probe thread has them (then kept with the family),
+        else None. An evaluation that failed is raised here, as it would have been in this
+        step."""
         fut = self._probing.get(family_id)
-        if fut is None:
-            members = {v: res for v, (_, res) in family_members(runs, results).items()}
-            points = [(v, params) for v, params, _lo, _hi in probe_points(fs, members)]
-            if self._probe_thread is None:
-                self._probe_thread = cf.ThreadPoolExecutor(
-                    max_workers=1, thread_name_prefix="family-probes")
-            self._probing[family_id] = self._probe_thread.submit(self._evaluate_probes, fs,
-                                                                 points)
-            log.info("family %s: evaluating %d probes", family_id, len(points))
-            return None
-        if not fut.done():
+        if fut is None or not fut.done():
             return None
         del self._probing[family_id]
         got = fut.result()  # an error fails the family (advance) or is retried next scan

@@ -10,7 +10,7 @@ from fastapi.responses import JSONResponse
 
 from application import families as app_families
 from application.admission import BudgetExceeded
-from optim.family import PROBES, FamilyError, plan_runs
+from optim.family.spec import FamilyError
 from service import paper, schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
@@ -21,17 +21,10 @@ from store.records import FAMILY_STATUSES
 router = APIRouter(prefix="/families", tags=["families"])
 
 
-def _progress(runs: list[Any], jobs: dict[str, Any], probes_done: bool) -> dict[str, int]:
-    done = sum(1 for r in runs if r.id in jobs and jobs[r.id].terminal)
-    done += 1 if probes_done else 0
-    running = sum(1 for j in jobs.values() if j.status == "running")
-    return {"runs": len(runs), "done": done, "running": running,
-            "queued": sum(1 for j in jobs.values() if j.status == "queued"),
-            "not_started": sum(1 for r in runs if r.id not in jobs and r.kind != PROBES)}
-
-
 def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
                curves: bool = False) -> dict[str, Any]:
+    """A family as the API serves it; `full`: its runs, progress and once done its report
+    (application.families.family_progress) and the paper's Table 2 where the task has one."""
     out: dict[str, Any] = {
         "id": fam.id,
         "url": url_for(request, "get_family", family_id=fam.id),
@@ -49,35 +42,11 @@ def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
     }
     if not full:
         return out
+    out.update(app_families.family_progress(
+        repo, fam, curves=curves, job_url=lambda job_id: url_for(request, "get_job",
+                                                                 job_id=job_id)))
     fs = app_families.family_spec(fam)  # parsed once per process
-    runs = plan_runs(fs)
-    jobs = repo.family_jobs(fam.id) if fam.runs else {}
-    report = repo.family_report(fam.id) if fam.status == "done" else None
-    rows = []
-    for r in runs:
-        if r.kind == PROBES:
-            continue
-        j = jobs.get(r.id)
-        row: dict[str, Any] = {
-            "id": r.id, "kind": r.kind, "value": r.value, "warm_from": r.warm_from,
-            "needs": list(r.needs), "job_id": None if j is None else j.id,
-            "job_url": None if j is None else url_for(request, "get_job", job_id=j.id),
-            "status": "not started" if j is None else j.status,
-            "best_objective": None if j is None else j.best_objective,
-            "evaluations": 0 if j is None else j.evaluations,
-            "start": None if j is None or not j.start else j.start.get("from"),
-        }
-        if curves and j is not None:
-            row["curve"] = [[g.evaluations, g.best_so_far] for g in repo.generations(j.id)]
-        rows.append(row)
-    out.update(
-        spec=fam.spec, runs=rows,
-        progress=_progress(runs, jobs, repo.family_probes(fam.id) is not None),
-        members=None if report is None else report["members"],
-        basis=None if report is None else report["basis"],
-        checks=None if report is None else report["checks"],
-        paper_table2=paper.table2(fs.base.task_type, fs.param),
-    )
+    out["paper_table2"] = paper.table2(fs.base.task_type, fs.param)
     return out
 
 

@@ -19,20 +19,9 @@ import numpy as np
 import pytest
 
 from optim.executors import PoolExecutor
-from optim.family import (
-    MEMBER,
-    PROBES,
-    REDUCED,
-    REFERENCE,
-    FamilyError,
-    family_checks,
-    member_spec,
-    parse_family,
-    plan_runs,
-    ready_runs,
-    reconstruction_errors,
-    run_start,
-)
+from optim.family.checks import family_checks, reconstruction_errors
+from optim.family.plan import MEMBER, PROBES, REDUCED, REFERENCE, plan_runs, ready_runs, run_start
+from optim.family.spec import FamilyError, member_spec, parse_family
 from optim.family_run import run_family
 from optim.result import OptimizationResult
 from optim.synthetic import LineFamily
@@ -241,7 +230,7 @@ def test_runner_keeps_the_workers_busy_and_warm_starts_chains(tmp_path: Path) ->
 RESUME_SCRIPT = textwrap.dedent("""
     import sys
     from optim.executors import PoolExecutor
-    from optim.family import parse_family
+    from optim.family.spec import parse_family
     from optim.family_run import run_family
     from optim.synthetic import LineFamily
     import json

@@ -21,6 +21,11 @@ MODULES = (
     "optim.synthetic",
     "optim.outcome",
     "optim.family",
+    "optim.family.spec",
+    "optim.family.plan",
+    "optim.family.checks",
+    "optim.family.report",
+    "optim.family.machine",
     "optim.family_run",
     "optim.sweep",
 )

@@ -1,6 +1,8 @@
 """The family driver (worker.family): a family's plan run as the service's jobs gives the same
-members and checks as `cmrt family run`'s runner with the same seeds; a killed driver resumes;
-cancel and a failed run end the family (synthetic objectives)."""
+family (members' objectives and params, every run, the checks) as `cmrt family run`'s runner
+with the same seeds, both drivers of the one state machine (optim.family.machine), on the
+synthetic family and on a short bend's real simulations; a killed driver resumes; cancel and
+a failed run end the family."""
 
 from __future__ import annotations
 
@@ -11,8 +13,10 @@ from typing import Any
 
 import pytest
 
-from optim.executors import SerialExecutor
-from optim.family import family_checks, parse_family, plan_runs
+from optim.executors import PoolExecutor, SerialExecutor
+from optim.family.checks import family_checks
+from optim.family.plan import plan_runs
+from optim.family.spec import parse_family
 from optim.family_run import run_family
 from optim.synthetic import LineFamily
 from store.records import CANCELLED, FAILED, FAMILY_DONE, FAMILY_RUNNING
@@ -80,14 +84,27 @@ def _create(repo, data: dict[str, Any]) -> str:
     return repo.create_family(fs.to_dict(), family=fs.family, param=fs.param).id
 
 
+def _family_of(report: dict[str, Any]) -> dict[str, Any]:
+    """What must be identical between the two drivers: each member's run, objective and
+    params (by repr), every run's outcome (its wall time aside) and the checks."""
+    return {
+        "members": [(m["value"], m["run"], repr(m["objective"]), [repr(x) for x in m["params"]])
+                    for m in report["members"]],
+        "runs": [(r["id"], repr(r["objective"]), r["evaluations"], r["stop_rule"], r["curve"])
+                 for r in report["runs"]],
+        "checks": report["checks"],
+    }
+
+
 def test_service_family_equals_the_command_lines(repo, config, executor, tmp_path: Path):
     fid = _create(repo, _family())
     assert _drive(repo, config, executor, fid) == FAMILY_DONE
     report = repo.family_report(fid)
     fs = parse_family(_family())
     local = run_family(fs, SerialExecutor(), tmp_path / "cli", objective_for=_objective)
-    want = family_checks(fs, local.results, local.probes).to_dict()
-    assert report["checks"] == want
+    assert _family_of(report) == _family_of(local.report)
+    assert report["checks"] == family_checks(fs, local.results, local.probes).to_dict()
+    assert len(report["members"]) == 5 and len(report["checks"]["probes"]) == 3
     assert sorted(report["jobs"]) == sorted(r.id for r in plan_runs(fs) if r.id != "probes")
     jobs = repo.family_jobs(fid)
     warm = [j for j in jobs.values() if j.start and j.start["from"].startswith("member-")]
@@ -96,6 +113,41 @@ def test_service_family_equals_the_command_lines(repo, config, executor, tmp_pat
     # each member landed in the library with its parameter
     decays = {c.decay for c in repo.list_cmrts("fam", limit=100)[0]}
     assert decays == {1.0, 1.5, 2.0, 2.5, 3.0}
+
+
+#: A short bend whose task duration is the family's parameter (tests/cli/test_family_cli.py's).
+BEND: dict[str, Any] = {
+    "spec": {"name": "fam_bend", "family": "bend",
+             "clip": {"preparation": 0.3, "duration": 0.3, "decay": 0.3},
+             "task": {"type": "pose_change",
+                      "target": {"waist": -40, "shoulder_r": 40, "shoulder_l": 40}},
+             "optimize": {"popsize": 4, "max_evaluations": 8, "min_evaluations": 0}},
+    "param": "clip.duration", "values": [0.2, 0.3, 0.4, 0.5], "strategy": "continuation",
+    "from": "both", "leave_out": [0.3], "k": 2, "seed": 3,
+}
+
+
+@pytest.mark.slow
+def test_the_bend_family_is_the_same_through_both_drivers(repo, config, tmp_path: Path):
+    """Real simulations: the runner in this process over a pool of two, the service's jobs
+    over the API's local pool."""
+    sims = LocalPoolExecutor(config, pool=SerialExecutor())
+    fid = _create(repo, BEND)
+    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, sims, config).run(),
+                          probe_executor=SerialExecutor())
+    status, deadline = FAMILY_RUNNING, time.monotonic() + 600
+    try:
+        while status == FAMILY_RUNNING and time.monotonic() < deadline:
+            status = driver.advance(fid)
+            time.sleep(0.01)
+    finally:
+        driver.close()
+        sims.close()
+    assert status == FAMILY_DONE, repo.get_family(fid).error
+    with PoolExecutor(2) as pool:
+        local = run_family(parse_family(BEND), pool, tmp_path / "cli")
+    assert _family_of(repo.family_report(fid)) == _family_of(local.report)
+    assert [m["value"] for m in local.report["members"]] == [0.2, 0.3, 0.4, 0.5]
 
 
 def test_a_driver_killed_midway_resumes_to_the_same_family(repo, config, executor):
