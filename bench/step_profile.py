@@ -8,8 +8,9 @@ Rollout`), run once unmeasured, then `--runs` times without the profiler (CPU pe
 the parts of a step: ODE's world step; contact handling (the collision callback, making the
 contact joints, reading their forces, clearing them); reading the state; the model terms (the
 compiled per-step calls); the QP (the momentum controller's solve, 60 Hz); the controller's
-other work; the task's hooks; recording; the loop itself (`_Clip.steps`'s own lines); the rest
-of `sim.physics` (applying torques, the divergence check, reprojection). Shares are of the
+other work; the task's hooks; recording; the loop itself (`_Clip`'s phases, their own lines); the
+rest of `sim.physics` and `sim.prop_bodies` (applying torques, the divergence check,
+reprojection). Shares are of the
 profiled total; the profiler's per-call cost inflates the parts made of many small Python
 calls, so read them as an upper bound for those and a lower one for ODE. No assertions.
 """
@@ -48,7 +49,7 @@ PARTS = [
     ("task hooks", [("sim/tasks/", "")]),
     ("recording", [("sim/recording.py", "")]),
     ("loop (rollout's own lines)", [("sim/rollout.py", "")]),
-    ("physics wrapper (torques, checks)", [("sim/physics.py", "")]),
+    ("physics wrapper (torques, checks)", [("sim/physics.py", ""), ("sim/prop_bodies.py", "")]),
 ]
 
 

@@ -15,7 +15,7 @@ Contracts:
   * `SimObjective(spec)(params) -> EvalOutcome` (objective: the paper's CP-error 2-norm in
     metres, with the simulator's fall penalty; fell; cpu_seconds).
     `params=None` evaluates the clip without any CMRT.
-  * `evaluate_params(spec, params, traces=False) -> sim.evaluation.Evaluation` is the same
+  * `evaluate_params(spec, params, traces=False) -> sim.clip_result.Evaluation` is the same
     evaluation with the full record (optionally per-step traces), using the same cache.
   * `sim.rollout` is imported lazily, so `optim` imports without it.
 """
@@ -36,7 +36,7 @@ from optim.spline import decode
 from sim.spec import CanonicalSpec, TaskSpec, canonical_spec, stored_spec, text_spec
 
 if TYPE_CHECKING:
-    from sim.evaluation import Evaluation
+    from sim.clip_result import Evaluation
 
 #: Specs kept per process (a typed spec is a few kB).
 SPEC_CACHE_SIZE = 64

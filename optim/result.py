@@ -39,7 +39,7 @@ from optim.errors import ParamsError, ResultFileError
 from optim.spline import CmrtSpline, check_params, decode, sample_curve
 
 RESULT_FORMAT = "cmrt-result/1"
-#: The values a fall direction takes (sim.evaluation.Evaluation.fall_direction).
+#: The values a fall direction takes (sim.clip_result.Evaluation.fall_direction).
 FALL_DIRECTIONS = ("forward", "backward")
 
 

@@ -7,8 +7,8 @@ imported only when `evaluate` is first used.
 
 from typing import Any
 
+from sim.clip_result import Evaluation
 from sim.errors import CharacterError, SimError, SpecError
-from sim.evaluation import Evaluation
 from sim.spec import TaskSpec, load_spec, parse_spec
 
 

@@ -12,7 +12,7 @@ counter-clockwise about +z, child relative to parent (radians in code, degrees i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -152,137 +152,208 @@ def _geom(g: Any, body: int, where: str) -> GeomDef:
                    (float(b[0]), float(b[1])), radius)
 
 
-def parse_character(data: Any, height: float | None = None, mass: float | None = None,
-                    name: str = "character") -> Character:
-    """Validate a character mapping and scale it; CharacterError names the field and the rule."""
-    if not isinstance(data, dict):
-        raise CharacterError(f"{name}: a character file must be a mapping")
-    ref = data.get("reference") or {}
-    ref_h = _positive(ref.get("height"), "reference.height")
-    ref_m = _positive(ref.get("mass"), "reference.mass")
+@dataclass
+class _Segments:
+    """What the segment list holds, gathered in file order (unscaled, model units)."""
+
+    body_names: list[str] = field(default_factory=list)
+    hinge_names: list[str] = field(default_factory=list)
+    parent: list[int] = field(default_factory=list)
+    mass: list[float] = field(default_factory=list)
+    inertia: list[float] = field(default_factory=list)
+    com: list[np.ndarray] = field(default_factory=list)
+    anchor: list[np.ndarray] = field(default_factory=list)
+    limits: list[np.ndarray] = field(default_factory=list)
+    weights: list[float] = field(default_factory=list)
+    torques: list[float] = field(default_factory=list)
+    feet: list[int] = field(default_factory=list)
+    heels: list[np.ndarray] = field(default_factory=list)
+    toes: list[np.ndarray] = field(default_factory=list)
+    point_body: list[int] = field(default_factory=list)
+    points: list[np.ndarray] = field(default_factory=list)
+    point_radius: list[float] = field(default_factory=list)
+    geoms: list[GeomDef] = field(default_factory=list)
+
+
+def _segment_list(data: dict) -> list:
+    """The `segments` list, at least two, the first being the `root`."""
     segs = data.get("segments")
     if not isinstance(segs, list) or len(segs) < 2:
         raise CharacterError("segments: must be a list of at least two segments")
     root = data.get("root")
     if not segs[0] or segs[0].get("name") != root:
         raise CharacterError(f"segments[0]: must be the root segment {root!r}")
+    return segs
 
-    body_names: list[str] = []
-    hinge_names: list[str] = []
-    parent, mass_l, inertia_l, com_l, anchor_l, limits_l = [], [], [], [], [], []
-    feet, heels, toes, pbody, pts, prad = [], [], [], [], [], []
-    weights_l, torques_l, geoms_l = [], [], []
+
+def _parse_body(out: _Segments, seg: Any, where: str) -> None:
+    """A segment's body: its unique name, mass, inertia and CoM."""
+    if not isinstance(seg, dict) or not isinstance(seg.get("name"), str):
+        raise CharacterError(f"{where}.name: every segment needs a name")
+    if seg["name"] in out.body_names:
+        raise CharacterError(f"{where}.name: duplicate segment {seg['name']!r}")
+    out.mass.append(_positive(seg.get("mass"), f"{where}.mass"))
+    out.inertia.append(_positive(seg.get("inertia"), f"{where}.inertia"))
+    out.com.append(_vec2(seg.get("com"), f"{where}.com"))
+
+
+def _parse_joint(out: _Segments, seg: dict, where: str, torque_limit: float) -> None:
+    """A non-root segment's hinge to its parent (listed before it): name, anchor, limits
+    (degrees, around the zero pose), tracking weight and torque limit."""
+    pname = seg.get("parent")
+    if pname not in out.body_names:
+        raise CharacterError(
+            f"{where}.parent: {pname!r} must name a segment listed before {seg['name']!r}")
+    joint = seg.get("joint")
+    if not isinstance(joint, dict) or not isinstance(joint.get("name"), str):
+        raise CharacterError(f"{where}.joint: needs a name, an anchor and limits")
+    if joint["name"] in out.hinge_names:
+        raise CharacterError(f"{where}.joint.name: duplicate joint {joint['name']!r}")
+    lim = joint.get("limits")
+    if (not isinstance(lim, list) or len(lim) != 2 or not all(
+            isinstance(v, int | float) for v in lim) or not lim[0] < lim[1]):
+        raise CharacterError(f"{where}.joint.limits: must be [lo, hi] degrees, lo < hi")
+    if not lim[0] <= 0.0 <= lim[1]:
+        raise CharacterError(f"{where}.joint.limits: must include the zero pose (0)")
+    out.weights.append(_nonnegative(joint.get("weight", DEFAULT_TRACKING_WEIGHT),
+                                    f"{where}.joint.weight"))
+    out.torques.append(_positive(joint.get("torque", torque_limit), f"{where}.joint.torque"))
+    out.parent.append(out.body_names.index(pname))
+    out.anchor.append(_vec2(joint.get("anchor"), f"{where}.joint.anchor"))
+    out.hinge_names.append(joint["name"])
+    out.limits.append(np.radians(lim))
+
+
+def _parse_foot(out: _Segments, seg: dict, where: str, body: int) -> None:
+    """A segment's foot, if it has one: heel and toe points, the toe ahead."""
+    if "foot" not in seg:
+        return
+    foot = seg["foot"]
+    if not isinstance(foot, dict):
+        raise CharacterError(f"{where}.foot: must hold heel and toe points")
+    heel = _vec2(foot.get("heel"), f"{where}.foot.heel")
+    toe = _vec2(foot.get("toe"), f"{where}.foot.toe")
+    if not toe[0] > heel[0]:
+        raise CharacterError(f"{where}.foot: the toe must be ahead (+x) of the heel")
+    out.feet.append(body)
+    out.heels.append(heel)
+    out.toes.append(toe)
+
+
+def _parse_contacts(out: _Segments, seg: dict, where: str, body: int) -> None:
+    """A segment's outline points (fall detection: [x, y, radius]) and contact geoms."""
+    for k, p in enumerate(seg.get("points", []) or []):
+        if not isinstance(p, list) or len(p) != 3:
+            raise CharacterError(f"{where}.points[{k}]: must be [x, y, radius]")
+        out.point_body.append(body)
+        out.points.append(_vec2(p[:2], f"{where}.points[{k}]"))
+        out.point_radius.append(float(p[2]))
+    for k, g in enumerate(seg.get("geoms", []) or []):
+        out.geoms.append(_geom(g, body, f"{where}.geoms[{k}]"))
+
+
+def _parse_segments(data: dict) -> _Segments:
+    """Every segment's body, joint, foot, outline points and geoms; at least one foot."""
+    out = _Segments()
+    segs = _segment_list(data)
     torque_limit = _positive(data.get("torque_limit"), "torque_limit")
     for i, seg in enumerate(segs):
         where = f"segments[{i}]"
-        if not isinstance(seg, dict) or not isinstance(seg.get("name"), str):
-            raise CharacterError(f"{where}.name: every segment needs a name")
-        sname = seg["name"]
-        if sname in body_names:
-            raise CharacterError(f"{where}.name: duplicate segment {sname!r}")
-        mass_l.append(_positive(seg.get("mass"), f"{where}.mass"))
-        inertia_l.append(_positive(seg.get("inertia"), f"{where}.inertia"))
-        com = _vec2(seg.get("com"), f"{where}.com")
-        com_l.append(com)
+        _parse_body(out, seg, where)
         if i == 0:
-            parent.append(-1)
-            anchor_l.append(com)
+            out.parent.append(-1)
+            out.anchor.append(out.com[-1])
         else:
-            pname = seg.get("parent")
-            if pname not in body_names:
-                raise CharacterError(
-                    f"{where}.parent: {pname!r} must name a segment listed before {sname!r}")
-            joint = seg.get("joint")
-            if not isinstance(joint, dict) or not isinstance(joint.get("name"), str):
-                raise CharacterError(f"{where}.joint: needs a name, an anchor and limits")
-            if joint["name"] in hinge_names:
-                raise CharacterError(f"{where}.joint.name: duplicate joint {joint['name']!r}")
-            lim = joint.get("limits")
-            if (not isinstance(lim, list) or len(lim) != 2 or not all(
-                    isinstance(v, int | float) for v in lim) or not lim[0] < lim[1]):
-                raise CharacterError(f"{where}.joint.limits: must be [lo, hi] degrees, lo < hi")
-            if not lim[0] <= 0.0 <= lim[1]:
-                raise CharacterError(f"{where}.joint.limits: must include the zero pose (0)")
-            weights_l.append(_nonnegative(joint.get("weight", DEFAULT_TRACKING_WEIGHT),
-                                          f"{where}.joint.weight"))
-            torques_l.append(_positive(joint.get("torque", torque_limit), f"{where}.joint.torque"))
-            parent.append(body_names.index(pname))
-            anchor_l.append(_vec2(joint.get("anchor"), f"{where}.joint.anchor"))
-            hinge_names.append(joint["name"])
-            limits_l.append(np.radians(lim))
-        body_names.append(sname)
-        if "foot" in seg:
-            foot = seg["foot"]
-            if not isinstance(foot, dict):
-                raise CharacterError(f"{where}.foot: must hold heel and toe points")
-            heel = _vec2(foot.get("heel"), f"{where}.foot.heel")
-            toe = _vec2(foot.get("toe"), f"{where}.foot.toe")
-            if not toe[0] > heel[0]:
-                raise CharacterError(f"{where}.foot: the toe must be ahead (+x) of the heel")
-            feet.append(i)
-            heels.append(heel)
-            toes.append(toe)
-        for k, p in enumerate(seg.get("points", []) or []):
-            if not isinstance(p, list) or len(p) != 3:
-                raise CharacterError(f"{where}.points[{k}]: must be [x, y, radius]")
-            pbody.append(i)
-            pts.append(_vec2(p[:2], f"{where}.points[{k}]"))
-            prad.append(float(p[2]))
-        for k, g in enumerate(seg.get("geoms", []) or []):
-            geoms_l.append(_geom(g, i, f"{where}.geoms[{k}]"))
-    if not feet:
+            _parse_joint(out, seg, where, torque_limit)
+        out.body_names.append(seg["name"])
+        _parse_foot(out, seg, where, i)
+        _parse_contacts(out, seg, where, i)
+    if not out.feet:
         raise CharacterError("segments: at least one segment needs a foot (heel and toe)")
+    return out
 
-    standing = data.get("standing") or {}
+
+def _standing_offsets(standing: dict, hinge_names: list[str]) -> np.ndarray:
+    """The standing pose's hinge angles (rad) relative to the zero pose."""
     offsets = np.zeros(len(hinge_names))
     for jname, deg in (standing.get("pose") or {}).items():
         if jname not in hinge_names:
             raise CharacterError(f"standing.pose: unknown joint {jname!r}")
         offsets[hinge_names.index(jname)] = np.radians(float(deg))
+    return offsets
 
-    geom_names = [g.name for g in geoms_l if g.name is not None]
+
+def _hands_and_torso(data: dict, segs: _Segments) -> tuple[list[str], int]:
+    """The geoms that can hold an object (unique geom names) and the body a push acts on."""
+    geom_names = [g.name for g in segs.geoms if g.name is not None]
     if len(set(geom_names)) != len(geom_names):
         raise CharacterError("geoms: geom names must be unique")
     hands = data.get("hands") or []
     if not isinstance(hands, list) or any(hd not in geom_names for hd in hands):
         raise CharacterError(f"hands: must list geom names, got {hands!r}")
-    torso_name = data.get("torso", root)
-    if torso_name not in body_names:
+    torso_name = data.get("torso", data.get("root"))
+    if torso_name not in segs.body_names:
         raise CharacterError(f"torso: {torso_name!r} is not a segment")
+    return hands, segs.body_names.index(torso_name)
 
+
+def _reference(data: dict) -> tuple[float, float]:
+    """The file's `reference` height (m) and mass (kg), those of its numbers."""
+    ref = data.get("reference") or {}
+    return (_positive(ref.get("height"), "reference.height"),
+            _positive(ref.get("mass"), "reference.mass"))
+
+
+def _scale(ref_h: float, ref_m: float, height: float | None,
+           mass: float | None) -> tuple[float, float, float]:
+    """(height m, length scale, mass scale) of the character asked for (None: the
+    reference's) against the reference."""
     h = ref_h if height is None else float(height)
     m = ref_m if mass is None else float(mass)
     if not 0.3 * ref_h <= h <= 3 * ref_h:
         raise CharacterError(f"height: {h} m is outside [{0.3 * ref_h:g}, {3 * ref_h:g}]")
     if m <= 0:
         raise CharacterError("mass: must be positive")
-    ls, ms = h / ref_h, m / ref_m
+    return h, h / ref_h, m / ref_m
+
+
+def parse_character(data: Any, height: float | None = None, mass: float | None = None,
+                    name: str = "character") -> Character:
+    """Validate a character mapping and scale it; CharacterError names the field and the rule."""
+    if not isinstance(data, dict):
+        raise CharacterError(f"{name}: a character file must be a mapping")
+    ref_h, ref_m = _reference(data)
+    segs = _parse_segments(data)
+    standing = data.get("standing") or {}
+    offsets = _standing_offsets(standing, segs.hinge_names)
+    hands, torso = _hands_and_torso(data, segs)
+    h, ls, ms = _scale(ref_h, ref_m, height, mass)
     arr = np.asarray
     return Character(
         name=name,
         height=h,
-        body_names=tuple(body_names),
-        hinge_names=tuple(hinge_names),
-        parent=arr(parent, dtype=np.int64),
-        mass=arr(mass_l) * ms,
-        inertia=arr(inertia_l) * ms * ls**2,
-        com0=arr(com_l) * ls,
-        anchor0=arr(anchor_l) * ls,
-        limits=arr(limits_l),
-        feet=arr(feet, dtype=np.int64),
-        heel0=arr(heels) * ls,
-        toe0=arr(toes) * ls,
-        point_body=arr(pbody, dtype=np.int64),
-        point0=arr(pts).reshape(-1, 2) * ls,
-        point_radius=arr(prad) * ls,
+        body_names=tuple(segs.body_names),
+        hinge_names=tuple(segs.hinge_names),
+        parent=arr(segs.parent, dtype=np.int64),
+        mass=arr(segs.mass) * ms,
+        inertia=arr(segs.inertia) * ms * ls**2,
+        com0=arr(segs.com) * ls,
+        anchor0=arr(segs.anchor) * ls,
+        limits=arr(segs.limits),
+        feet=arr(segs.feet, dtype=np.int64),
+        heel0=arr(segs.heels) * ls,
+        toe0=arr(segs.toes) * ls,
+        point_body=arr(segs.point_body, dtype=np.int64),
+        point0=arr(segs.points).reshape(-1, 2) * ls,
+        point_radius=arr(segs.point_radius) * ls,
         standing_offsets=offsets,
         balance_standing=bool(standing.get("balance", False)),
-        tracking_weights=arr(weights_l, dtype=float),
-        torque_limits=arr(torques_l, dtype=float),
+        tracking_weights=arr(segs.weights, dtype=float),
+        torque_limits=arr(segs.torques, dtype=float),
         geoms=tuple(GeomDef(g.name, g.body, g.shape, (g.a[0] * ls, g.a[1] * ls),
-                            (g.b[0] * ls, g.b[1] * ls), g.radius * ls) for g in geoms_l),
+                            (g.b[0] * ls, g.b[1] * ls), g.radius * ls) for g in segs.geoms),
         hands=tuple(hands),
-        torso=body_names.index(torso_name),
+        torso=torso,
     )
 
 

@@ -352,29 +352,6 @@ def step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_loca
 
 
 @njit(cache=True)
-def step_model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
-                    heel_local, toe_local, point_body, point_local, point_radius,
-                    M, h, c, cd, A_L, A_H, Js, pts, sole_x):
-    """`step_model` writing its arrays into the given ones (M, h, c, cd, A_L, A_H, Js, pts,
-    sole_x, shaped as `step_model` returns them) and returning only (support back edge x,
-    front edge x, lowest outline clearance): the same values, without boxing nine new arrays
-    for Python every step (~0.3 us each). The arrays are overwritten at each call."""
-    (M1, h1, c1, cd1, A_L1, A_H1, Js1, pts1, sole1, lo, hi,
-     clearance) = step_model(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local,
-                             heel_local, toe_local, point_body, point_local, point_radius)
-    M[:, :] = M1
-    h[:] = h1
-    c[:] = c1
-    cd[:] = cd1
-    A_L[:, :] = A_L1
-    A_H[:] = A_H1
-    Js[:, :] = Js1
-    pts[:, :] = pts1
-    sole_x[:] = sole1
-    return lo, hi, clearance
-
-
-@njit(cache=True)
 def _model_into(q, qd, parent, a_par, a_chi, path, mass, inertia, feet, sole_local, heel_local,
                 toe_local, point_body, point_local, point_radius, M, h, c, cd, A_L, A_H, Js,
                 pts, sole_x):
@@ -420,9 +397,9 @@ class PackedModel:
     flat output buffer with the step's model terms as views into it, for `step_model_packed`.
 
     A compiled call pays for the type check and unboxing of every argument (~0.1 us per array
-    here): `step_model_into` takes 24 arrays, `step_model_packed` 6. The views `M, h, c, cd,
-    A_L, A_H, Js, pts, sole_x` (shaped as `step_model` returns them) are overwritten at each
-    call, as `step_model_into`'s arrays are."""
+    here): `step_model`'s inputs and outputs are 24 arrays, `step_model_packed` takes 6. The
+    views `M, h, c, cd, A_L, A_H, Js, pts, sole_x` (shaped as `step_model` returns them) are
+    overwritten at each call."""
 
     def __init__(self, a: ModelArrays, n: int):
         nb, nf, npt = len(a.parent), len(a.feet), len(a.point_body)
@@ -455,10 +432,10 @@ class PackedModel:
 
 @njit(cache=True)
 def step_model_packed(q, qd, floats, ints, path, out):
-    """`step_model_into` with the constants and outputs packed as `PackedModel` holds them:
-    the same operations on the same values (the unpacked arrays are views of the packed
-    ones), computed straight into `out` (`_model_into`) and returning (support back edge x,
-    front edge x, lowest outline clearance)."""
+    """`step_model` with the constants and outputs packed as `PackedModel` holds them: the
+    same operations on the same values (the unpacked arrays are views of the packed ones),
+    computed straight into `out` (`_model_into`, no new arrays for Python) and returning
+    (support back edge x, front edge x, lowest outline clearance)."""
     nb, nf, npt = ints[0], ints[1], ints[2]
     parent = ints[3:3 + nb]
     feet = ints[3 + nb:3 + nb + nf]

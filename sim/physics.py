@@ -25,7 +25,7 @@ Choices, with the PyODE traps they avoid (docs/physics.md):
   a rotation about z and its x/y angular velocity zeroed (as ODE's demo_plane2d does: the joint
   does not correct rotational drift out of the plane). A prop fixed to the character or hanging
   from a hinge is kept in the plane by those joints, so its own Plane2DJoint is switched off
-  (`attach(None, None)`) while they hold.
+  (`attach(None, None)`) while they hold. A prop's ODE objects are `sim.prop_bodies.Prop`.
 - Props collide (one `SimpleSpace`, category bits) with the ground, with each other and with
   the character's contact geoms (`geoms` in the character file: hands, forearms); the
   character's geoms collide with props only (the feet's ground contacts are made as above).
@@ -46,7 +46,8 @@ import ode
 from sim.character import ROOT_DOF, Character
 from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics
 from sim.errors import SimError
-from sim.props import PROP_DEPTH, Hanging, PropDef
+from sim.prop_bodies import CATEGORY_CHARACTER, CATEGORY_GROUND, CATEGORY_PROP, Prop, body_pose
+from sim.props import PropDef
 
 DT = 0.001  # s, simulation step
 WORLD_CFM = 1e-6
@@ -64,11 +65,8 @@ CONTACT_MARGIN = 0.0005  # m: a heel/toe within this height of the ground gets a
 MAX_SPEED = 100.0
 MAX_SPIN = 1000.0
 
-# Collision categories (ODE category / collide bits).
-_GROUND, _CHARACTER, _PROP = 1, 2, 4
 #: Per-geom category bits (`Physics._assign_collision_bits`) fit ODE's unsigned long.
 MAX_COLLISION_BITS = 63
-_CAPSULE_ALONG_Y = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)  # local z -> world y
 
 #: Contact kinds reported by `Physics.contact_list`.
 FOOT_GROUND, PROP_GROUND, PROP_PROP, PROP_CHARACTER = (
@@ -117,110 +115,37 @@ class ContactForce:
     force: tuple[float, float]
 
 
-class Prop:
-    """A prop's ODE objects: its body, geom, plane joint and (if hanging) its rod or chain."""
-
-    def __init__(self, world: ode.World, space: ode.Space, d: PropDef):
-        self.definition = d
-        self.name = d.name
-        self.body = ode.Body(world)
-        mass = ode.Mass()
-        i = d.inertia
-        mass.setParameters(d.mass, 0.0, 0.0, 0.0, i, i, i, 0.0, 0.0, 0.0)
-        self.body.setMass(mass)
-        if d.shape == "box":
-            self.geom = ode.GeomBox(space, (d.size[0], d.size[1], PROP_DEPTH))
-        elif d.shape in ("sphere", "disc"):  # a disc's section by the plane is this circle
-            self.geom = ode.GeomSphere(space, d.size[0])
-        else:
-            self.geom = ode.GeomCapsule(space, d.size[0], d.size[1])
-        self.geom.setBody(self.body)
-        if d.shape == "capsule":
-            self.geom.setOffsetRotation(_CAPSULE_ALONG_Y)
-        self.geom.setCategoryBits(_PROP)
-        self.geom.setCollideBits(_GROUND | _CHARACTER | _PROP)
-        self.plane = ode.Plane2DJoint(world)
-        self.links: list[ode.Body] = []
-        self.hang_joints: list[ode.HingeJoint] = []
-        self._link_rest: list[tuple[float, float]] = []
-        self.reset()
-        if d.hanging is not None:
-            self._hang(world, d.hanging)
-
-    def _hang(self, world: ode.World, h: Hanging) -> None:
-        """A rod (one hinge about z at the anchor) or a chain of `links` bodies spaced evenly
-        on the anchor-prop segment, each hinged to the one above, the prop to the last."""
-        (ax, ay), (px, py) = h.anchor, self.definition.position
-        n = h.links
-        length = math.hypot(px - ax, py - ay) / max(n, 1)
-        for k in range(n):
-            f = (k + 0.5) / n
-            link = ode.Body(world)
-            m = ode.Mass()
-            i = h.link_mass * length * length / 12.0
-            m.setParameters(h.link_mass, 0.0, 0.0, 0.0, i, i, i, 0.0, 0.0, 0.0)
-            link.setMass(m)
-            self.links.append(link)
-            self._link_rest.append((ax + f * (px - ax), ay + f * (py - ay)))
-        self._reset_links()
-        chain = [*self.links, self.body]
-        for k, b in enumerate(chain):
-            j = ode.HingeJoint(world)
-            j.attach(b, chain[k - 1] if k > 0 else ode.environment)
-            f = k / max(n, 1)
-            j.setAnchor((ax + f * (px - ax), ay + f * (py - ay), 0.0))
-            j.setAxis((0.0, 0.0, 1.0))
-            self.hang_joints.append(j)
-        self.plane.attach(None, None)  # the hinges keep it in the plane
-
-    def _reset_links(self) -> None:
-        for link, (x, y) in zip(self.links, self._link_rest, strict=True):
-            link.setPosition((x, y, 0.0))
-            link.setQuaternion((1.0, 0.0, 0.0, 0.0))
-            link.setLinearVel((0.0, 0.0, 0.0))
-            link.setAngularVel((0.0, 0.0, 0.0))
-
-    @property
-    def free(self) -> bool:
-        """Neither hanging nor attached: kept in the plane by its own Plane2DJoint."""
-        return self.plane.getBody(0) is not None
-
-    def reset(self) -> None:
-        d = self.definition
-        b = self.body
-        b.setPosition((d.position[0], d.position[1], 0.0))
-        half = 0.5 * d.angle
-        b.setQuaternion((math.cos(half), 0.0, 0.0, math.sin(half)))
-        b.setLinearVel((d.velocity[0], d.velocity[1], 0.0))
-        b.setAngularVel((0.0, 0.0, d.angular_velocity))
-        b.setForce((0.0, 0.0, 0.0))
-        b.setTorque((0.0, 0.0, 0.0))
-        b.enable()
-        self._reset_links()
-        if d.hanging is None:
-            self.plane.attach(self.body, ode.environment)
-
-    def close(self) -> None:
-        for j in self.hang_joints:
-            j.setFeedback(False)
-        self.hang_joints.clear()
-
-    def pose(self) -> tuple[float, float, float]:
-        return _pose(self.body)
-
-    def reproject(self) -> None:
-        """Keep a free prop's orientation a rotation about z (ODE's demo_plane2d)."""
-        w, _x, _y, z = self.body.getQuaternion()
-        n = math.hypot(w, z)
-        self.body.setQuaternion((w / n, 0.0, 0.0, z / n))
-        wz = self.body.getAngularVel()[2]
-        self.body.setAngularVel((0.0, 0.0, wz))
+def _world() -> ode.World:
+    """An empty world with gravity along -y and the world's ERP and CFM."""
+    world = ode.World()
+    world.setGravity((0.0, -GRAVITY, 0.0))
+    world.setERP(WORLD_ERP)
+    world.setCFM(WORLD_CFM)
+    return world
 
 
-def _pose(body: ode.Body) -> tuple[float, float, float]:
-    x, y, _ = body.getPosition()
-    R = body.getRotation()
-    return x, y, math.atan2(R[3], R[0])
+def _foot_contact() -> ode.Contact:
+    """The parameters of a foot's ground contact. Friction only along x (ContactFDir1 with
+    mu2 = 0 drops the out-of-plane friction row, which the planar root constraint makes
+    redundant)."""
+    c = ode.Contact()
+    c.setMode(ode.ContactApprox1 | ode.ContactSoftCFM | ode.ContactMu2 | ode.ContactFDir1)
+    c.setMu(FRICTION_MU)
+    c.setMu2(0.0)
+    c.setFDir1((1.0, 0.0, 0.0))
+    c.setBounce(0.0)
+    c.setSoftCFM(CONTACT_SOFT_CFM)
+    return c
+
+
+def _plastic_prop_contact() -> ode.Contact:
+    """The parameters of a plastic prop contact (its mu and direction are set per pair)."""
+    c = ode.Contact()
+    c.setMode(ode.ContactApprox1 | ode.ContactSoftCFM | ode.ContactMu2 | ode.ContactFDir1)
+    c.setMu2(0.0)
+    c.setBounce(0.0)
+    c.setSoftCFM(CONTACT_SOFT_CFM)
+    return c
 
 
 class Physics:
@@ -228,14 +153,42 @@ class Physics:
 
     def __init__(self, character: Character, arrays: ModelArrays | None = None,
                  props: tuple[PropDef, ...] | list[PropDef] = ()):
+        # The builders run in this order: ODE's bodies, joints and geoms keep the order in
+        # which they were made, and the solver and the collision pass follow it.
         self.character = character
         self.arrays = arrays or ModelArrays.from_character(character)
-        self.world = ode.World()
-        self.world.setGravity((0.0, -GRAVITY, 0.0))
-        self.world.setERP(WORLD_ERP)
-        self.world.setCFM(WORLD_CFM)
-        ch = character
-        self.bodies: list[ode.Body] = []
+        self.world = _world()
+        self.bodies: list[ode.Body] = self._build_bodies()
+        self.hinges: list[ode.HingeJoint] = []
+        #: (hinge index, model angle of ODE's zero) of the hinges whose range reaches near
+        #: +-180 deg: their ODE zero sits at the middle of the range (see `hinge_zero`).
+        self.hinge_zeros: list[tuple[int, float]] = []
+        self._build_hinges()
+        self._torque_limits = character.torque_limits.tolist()
+        self._torque_limit_array = np.array(self._torque_limits, dtype=float)
+        self._neg_torque_limit_array = -self._torque_limit_array  # (not negated every step)
+        self.plane = ode.Plane2DJoint(self.world)
+        self.plane.attach(self.bodies[0], ode.environment)
+        self.contact_group = ode.JointGroup()
+        self.contacts: list[tuple[ode.ContactJoint, int, float]] = []
+        self._contact = _foot_contact()
+        #: q then qd, read from ODE by `read_state`; `q` and `qd` are views of it.
+        self._state = np.zeros(2 * character.ndof)
+        self.q, self.qd = self._state[:character.ndof], self._state[character.ndof:]
+        self._root = self.bodies[0]
+        self._build_collision_space()
+        self._build_props(props)
+        #: Joints made at run time (a catch's weld, a chain's hinges): (joint, prop name,
+        #: body or prop name), kept referenced (PyODE destroys a joint whose object dies).
+        self.attachments: list[tuple[ode.FixedJoint | ode.HingeJoint, str, str]] = []
+        self._pair_bits: list[tuple[ode.GeomObject, int, int]] | None = None
+        self._owner_bit: dict[str, int] = {}
+        self._assign_collision_bits()
+
+    def _build_bodies(self) -> list[ode.Body]:
+        """One ODE body per segment at its zero-pose CoM, with its mass and z inertia."""
+        ch = self.character
+        bodies = []
         for b in range(ch.n_bodies):
             body = ode.Body(self.world)
             mass = ode.Mass()
@@ -243,11 +196,13 @@ class Physics:
             mass.setParameters(float(ch.mass[b]), 0.0, 0.0, 0.0, i, i, i, 0.0, 0.0, 0.0)
             body.setMass(mass)
             body.setPosition((float(ch.com0[b, 0]), float(ch.com0[b, 1]), 0.0))
-            self.bodies.append(body)
-        self.hinges: list[ode.HingeJoint] = []
-        #: (hinge index, model angle of ODE's zero) of the hinges whose range reaches near
-        #: +-180 deg: their ODE zero sits at the middle of the range (see `hinge_zero`).
-        self.hinge_zeros: list[tuple[int, float]] = []
+            bodies.append(body)
+        return bodies
+
+    def _build_hinges(self) -> None:
+        """A z-axis hinge (child, parent) per non-root body at its anchor, its stops at the
+        joint's limits relative to its ODE zero (`hinge_zero`)."""
+        ch = self.character
         for b in range(1, ch.n_bodies):
             j = ode.HingeJoint(self.world)
             j.attach(self.bodies[b], self.bodies[ch.parent[b]])
@@ -270,38 +225,27 @@ class Physics:
             j.setParam(ode.ParamLoStop, float(lo) - zero)
             j.setParam(ode.ParamHiStop, float(hi) - zero)
             self.hinges.append(j)
-        self._torque_limits = ch.torque_limits.tolist()
-        self._torque_limit_array = np.array(self._torque_limits, dtype=float)
-        self._neg_torque_limit_array = -self._torque_limit_array  # (not negated every step)
-        self.plane = ode.Plane2DJoint(self.world)
-        self.plane.attach(self.bodies[0], ode.environment)
-        self.contact_group = ode.JointGroup()
-        self.contacts: list[tuple[ode.ContactJoint, int, float]] = []
-        self._contact = ode.Contact()
-        # Friction only along x (ContactFDir1 with mu2 = 0 drops the out-of-plane friction
-        # row, which the planar root constraint makes redundant).
-        self._contact.setMode(
-            ode.ContactApprox1 | ode.ContactSoftCFM | ode.ContactMu2 | ode.ContactFDir1)
-        self._contact.setMu(FRICTION_MU)
-        self._contact.setMu2(0.0)
-        self._contact.setFDir1((1.0, 0.0, 0.0))
-        self._contact.setBounce(0.0)
-        self._contact.setSoftCFM(CONTACT_SOFT_CFM)
-        self.q = np.zeros(ch.ndof)
-        self.qd = np.zeros(ch.ndof)
-        # Collision space: props against the ground, each other and the character's geoms.
+
+    def _build_collision_space(self) -> None:
+        """The collision space with the ground plane and the character's contact geoms
+        (props against the ground, each other and those geoms)."""
+        ch = self.character
         self.space = ode.SimpleSpace()
         self.ground = ode.GeomPlane(self.space, (0.0, 1.0, 0.0), 0.0)
-        self.ground.setCategoryBits(_GROUND)
-        self.ground.setCollideBits(_PROP)
+        self.ground.setCategoryBits(CATEGORY_GROUND)
+        self.ground.setCollideBits(CATEGORY_PROP)
         self.geoms: dict[str, ode.GeomObject] = {}
         self._geom_owner: dict[int, str] = {id(self.ground): "ground"}
         for k, g in enumerate(ch.geoms):
             geom = self._character_geom(g)
             self.geoms[g.name or f"{ch.body_names[g.body]}.geom{k}"] = geom
             self._geom_owner[id(geom)] = ch.body_names[g.body]
+
+    def _build_props(self, props: tuple[PropDef, ...] | list[PropDef]) -> None:
+        """The props' ODE objects (names unique among bodies and props), their look-ups,
+        and the joint group and contact parameters of their contacts."""
         self.props: list[Prop] = [Prop(self.world, self.space, d) for d in props]
-        names = list(ch.body_names)
+        names = list(self.character.body_names)
         for p in self.props:
             if p.name in names:
                 raise SimError(f"prop {p.name!r}: the name is taken by a body or prop")
@@ -310,23 +254,12 @@ class Physics:
         self._prop_by_name = {p.name: p for p in self.props}
         self._prop_bodies = [p.body for p in self.props]
         self._prop_bodies += [link for p in self.props for link in p.links]
-        self._body_index = {n: i for i, n in enumerate(ch.body_names)}
+        self._body_index = {n: i for i, n in enumerate(self.character.body_names)}
         self.prop_group = ode.JointGroup()
         self.prop_contacts: list[tuple[ode.ContactJoint, str, str, str | None,
                                        tuple[float, float]]] = []
-        self._prop_contact = ode.Contact()
-        self._prop_contact.setMode(
-            ode.ContactApprox1 | ode.ContactSoftCFM | ode.ContactMu2 | ode.ContactFDir1)
-        self._prop_contact.setMu2(0.0)
-        self._prop_contact.setBounce(0.0)
-        self._prop_contact.setSoftCFM(CONTACT_SOFT_CFM)
+        self._prop_contact = _plastic_prop_contact()
         self._bounce_contacts: dict[float, ode.Contact] = {}
-        #: Joints made at run time (a catch's weld, a chain's hinges): (joint, prop name,
-        #: body or prop name), kept referenced (PyODE destroys a joint whose object dies).
-        self.attachments: list[tuple[ode.FixedJoint | ode.HingeJoint, str, str]] = []
-        self._pair_bits: list[tuple[ode.GeomObject, int, int]] | None = None
-        self._owner_bit: dict[str, int] = {}
-        self._assign_collision_bits()
 
     def _assign_collision_bits(self) -> None:
         """One category bit per geom of the space, collide bits listing the geoms each may
@@ -390,8 +323,8 @@ class Physics:
         geom.setOffsetPosition((mid[0] - float(com[0]), mid[1] - float(com[1]), 0.0))
         if g.shape == "capsule":
             geom.setOffsetRotation((-uy, 0.0, ux, ux, 0.0, uy, 0.0, 1.0, 0.0))
-        geom.setCategoryBits(_CHARACTER)
-        geom.setCollideBits(_PROP)
+        geom.setCategoryBits(CATEGORY_CHARACTER)
+        geom.setCollideBits(CATEGORY_PROP)
         return geom
 
     # ---- state ------------------------------------------------------------------------
@@ -427,26 +360,23 @@ class Physics:
         self.read_state()
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """Read q, qd from ODE: root CoM, root angle, then hinge angles and rates."""
-        root = self.bodies[0]
+        """Read q, qd from ODE: root CoM, root angle, then hinge angles and rates. The same
+        two arrays (`q`, `qd`) every call, overwritten."""
+        root = self._root
         x, y, _ = root.getPosition()
         R = root.getRotation()
         vx, vy, _ = root.getLinearVel()
-        q, qd = self.q, self.qd
-        q[0], q[1], q[2] = x, y, math.atan2(R[3], R[0])
-        qd[0], qd[1], qd[2] = vx, vy, root.getAngularVel()[2]
-        angles = list(map(_GET_ANGLE, self.hinges))  # no Python loop: ~1.2 us a step
+        hinges = self.hinges
+        # One list of q and qd written into their one buffer: a single conversion per step
+        # (~0.5 us less than element and slice writes); `map` reads the hinges without a
+        # Python loop.
+        state = [x, y, math.atan2(R[3], R[0]), *map(_GET_ANGLE, hinges),
+                 vx, vy, root.getAngularVel()[2], *map(_GET_ANGLE_RATE, hinges)]
         for i, zero in self.hinge_zeros:
-            # Python's float sum is numpy's float64 sum (the same bits), without an array
-            # element read and write per moved zero.
-            angles[i] += zero
-        q[ROOT_DOF:] = angles
-        qd[ROOT_DOF:] = list(map(_GET_ANGLE_RATE, self.hinges))
-        return q, qd
-
-    def body_state(self, b: int) -> tuple[float, float, float]:
-        """(x, y, angle) of body b's CoM as ODE has it."""
-        return _pose(self.bodies[b])
+            # Python's float sum is numpy's float64 sum (the same bits).
+            state[ROOT_DOF + i] += zero
+        self._state[:] = state
+        return self.q, self.qd
 
     def pose_names(self) -> list[str]:
         """Names of the rows of `poses()`: the character's bodies, then props (and links)."""
@@ -458,10 +388,10 @@ class Physics:
 
     def poses(self) -> list[tuple[float, float, float]]:
         """(x, y, angle) of every body, prop and chain link (rows as `pose_names()`)."""
-        out = [_pose(b) for b in self.bodies]
+        out = [body_pose(b) for b in self.bodies]
         for p in self.props:
-            out.append(_pose(p.body))
-            out += [_pose(link) for link in p.links]
+            out.append(body_pose(p.body))
+            out += [body_pose(link) for link in p.links]
         return out
 
     def prop(self, name: str) -> Prop:
@@ -595,10 +525,6 @@ class Physics:
 
     def attached(self, prop: str) -> bool:
         return any(name == prop for _j, name, _b in self.attachments)
-
-    def attachment_forces(self) -> list[tuple[str, str, tuple[float, float]]]:
-        """After a step: (prop, body, force (N) of the weld on the prop) per attachment."""
-        return [(pn, bn, tuple(j.getFeedback()[0][:2])) for j, pn, bn in self.attachments]
 
     def detach_all(self) -> None:
         """Drop every run-time joint (feedback off first: PyODE trap 1)."""

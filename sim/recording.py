@@ -1,9 +1,9 @@
 """Recording beside the rollout: the 1 kHz traces and the replay frames.
 
 `Recorder(n_steps, physics)`: `trace(...)` once per step (CP, support centre, CP error, CM, CM
-reference: `sim.evaluation.Traces`), `frame(...)` at the start of every FRAME_EVERY-th step
+reference: `sim.clip_result.Traces`), `frame(...)` at the start of every FRAME_EVERY-th step
 (poses of every body and prop read from ODE, CM, CM reference, CP, support edges:
-`sim.evaluation.Frames`). Nothing here changes the simulation.
+`sim.clip_result.Frames`). Nothing here changes the simulation.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from sim.evaluation import Frames, Traces
+from sim.clip_result import Frames, Traces
 from sim.physics import DT, Physics
 
 FRAME_RATE = 100.0  # Hz, replay frames

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from sim.character import Character
-from sim.evaluation import Evaluation
+from sim.clip_result import Evaluation
 from sim.physics import DT
 from sim.props import PropDef
 

@@ -2,8 +2,9 @@
 
 `Rollout(spec)` builds the character, the task, the physics (with the task's props) and the
 controllers once; `run(cmrt)` resets them and simulates the clip (preparation + task + decay)
-at 1 ms steps. The loop only coordinates: observe (state and model terms), check for a fall,
-act (the active controller's torques), task events, step, measure, record.
+at 1 ms steps. The loop only coordinates, as dm_control's does: observe (state and model
+terms, the body's fall rules), act (the active controller's torques), step the physics (task
+events, contacts, ODE), record (the CP error, traces), check the task.
 
 Measurements, every step: the centre of pressure p(t) from the feet's contact feedback, the
 support centre s(t) (middle of the stance feet's heel-toe interval: both feet, or the
@@ -35,6 +36,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from sim.character import ROOT_DOF
+from sim.clip_result import Evaluation
 from sim.controllers import FallController
 from sim.controllers.base import Cmrt, Controller, Observation, stance_terms
 from sim.controllers.registry import ControllerContext, build_controller
@@ -46,7 +48,6 @@ from sim.dynamics import (
     step_model_held,
     step_model_packed,
 )
-from sim.evaluation import Evaluation
 from sim.physics import CONTACT_SOFT_CFM, DT, FRICTION_MU, WORLD_ERP, DivergenceError, Physics
 from sim.props import PropDef
 from sim.recording import FRAME_EVERY, Recorder
@@ -137,6 +138,9 @@ class Rollout:
                                                FRICTION_MU, self.q0.copy()))
         self.fall_controller = FallController(ch, DT)
         self.steps = int(round(spec.clip.length / DT))
+        # (`PackedModel`: the constants in three arrays and the model terms' outputs as views
+        # of one buffer, so that the one compiled call per step unboxes 6 arguments, not 24.)
+        self.pack = PackedModel(self.arrays, ch.ndof)
 
     def run(self, cmrt: Cmrt | None = None, traces: bool = False,
             stop_above: Callable[[], float] | None = None) -> Evaluation:
@@ -156,12 +160,16 @@ class Rollout:
 
 
 class _Clip:
-    """One run of a `Rollout`: its state, the step loop (`steps`) and the loop's named pieces:
-    the divergence check, the fall rules (`_fall`: the body's own, and the controller's with the
-    hand-over to the fall controller, `_hand_over`), the recording (`Recorder`), and the scores
-    (`result`, or `cut` for a run stopped by its bound). The per-step path (state, model terms,
-    torques, world step, CP error) stays in `steps` with its values in local variables: as
-    method calls and attributes it cost 1.5-2 % more CPU per step."""
+    """One run of a `Rollout`. Its loop (`steps`) reads as dm_control's: observe (`_observe`:
+    the state, the model terms, the body's own fall rules), act (`_act`: the active
+    controller's torques applied; its fall rule and the hand-over to the fall controller),
+    step the physics (`_step_physics`: the task's events, contacts, ODE, contact feedback),
+    record (`_record`: the CP error, and the traces and frames when on: `Recorder`) and check
+    the task (`_check_task`: a failed interaction releases the CMRT). Then the scores
+    (`result`, or `cut` for a run stopped by its bound).
+
+    Everything a step reads that does not change during the run (bound methods, the model's
+    arrays, limits) is looked up once here, not at every step."""
 
     def __init__(self, rollout: Rollout, cmrt: Cmrt | None, traces: bool):
         self.rollout = rollout
@@ -169,139 +177,199 @@ class _Clip:
         self.phys, self.task = phys, task
         phys.reset(rollout.q0)
         task.reset(phys)
-        self.balance = self.active = rollout.controller
+        self.balance = self.active = balance = rollout.controller
         # Only a task that can report a failed interaction gets the wrapper: every other clip
         # hands the controller the CMRT itself.
         self.releasable = (ReleasableCmrt(cmrt, RELEASE_TIME) if cmrt is not None and task.events
                            and task.reports_failure else None)
-        self.balance.reset(None, self.releasable or cmrt)
+        balance.reset(None, self.releasable or cmrt)
         self.rec = Recorder(rollout.steps, phys) if traces else None
         self.sq_sum = 0.0
         self.max_e = 0.0
         self.contact_steps = 0
         self.k_done = 0
+        self.lost = False  # the balance controller lost balance (traces on: the fall goes on)
         self.fall_time: float | None = None
         self.fall_reason: str | None = None
         self.direction: str | None = None
+        #: The CM reference the recording shows (kept up to date only when recording).
+        self.c_ref = (rollout.cm0[0], 0.0)
         # Lower bound of the objective at any point of the clip: the running error norm grows
         # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
         # fall scores at least F0 = sqrt(steps) x support length.
         self.f0 = math.sqrt(rollout.steps) * rollout.support_length
+        self._hoist(rollout)
 
-    def steps(self, stop_above: Callable[[], float] | None) -> bool:
-        """Simulate the clip's steps: observe (state, model terms, stance feet's terms), judge
-        the fall rules, act, record, step the world, measure the CP error. True when
-        `stop_above` cut the run."""
-        r, phys, task, rec = self.rollout, self.phys, self.task, self.rec
-        balance = active = self.balance
-        ch = r.character
-        events = task.events
-        releasable = self.releasable
-        foot_of_point = np.repeat(ch.feet, 2).tolist()
-        n_feet = len(ch.feet)
-        cm_floor = FALL_CM_FRACTION * r.cm0[1]
-        f0 = self.f0
-        sq_sum, max_e, contact_steps, k_done = 0.0, 0.0, 0, 0
-        lost = cut = False
-        c_ref = (r.cm0[0], 0.0)
-        # The model terms are written into these arrays every step (step_model_packed): the
-        # Observation's arrays hold this step's values only, as q and qd (read_state) do.
-        # (`PackedModel`: views of one buffer, the constants in three arrays, so that the one
-        # compiled call per step unboxes 6 arguments, not 24.)
-        pack = PackedModel(r.arrays, ch.ndof)
-        M, h, c, cd, A_L, A_H, Js, pts, sole_x = pack.arrays()
-        pargs = pack.args()
-        read_state = phys.read_state
-        apply_torques, add_clamped = phys.apply_torques, phys.add_clamped_torques
-        make_contacts, world_step = phys.make_contacts, phys.step
-        contact_forces, clear_contacts = phys.contact_forces, phys.clear_contacts
-        has_props = bool(phys.props)
+    def _hoist(self, rollout: Rollout) -> None:
+        """What every step reads: the model's output arrays (`PackedModel`: the model terms
+        are written into them every step, so the Observation's arrays hold this step's values
+        only, as q and qd do), the physics' and controllers' bound methods, the limits."""
+        phys, balance, ch = self.phys, self.balance, rollout.character
+        (self._M, self._h, self._c, self._cd, self._A_L, self._A_H, self._Js, self._pts,
+         self._sole_x) = rollout.pack.arrays()
+        self._pargs = rollout.pack.args()
+        self._q, self._qd = phys.q, phys.qd  # the arrays `read_state` writes
+        self._foot_of_point = np.repeat(ch.feet, 2).tolist()
+        self._n_feet = len(ch.feet)
+        self._cm_floor = FALL_CM_FRACTION * rollout.cm0[1]
+        self._events = self.task.events
+        self._has_props = bool(phys.props)
+        self._read_state = phys.read_state
+        self._apply_torques, self._add_clamped = phys.apply_torques, phys.add_clamped_torques
+        self._make_contacts, self._world_step = phys.make_contacts, phys.step
+        self._contact_forces, self._clear_contacts = phys.contact_forces, phys.clear_contacts
         # Steps between QP solves: the model terms, the held accelerations' inverse dynamics
         # and the torque clamp in one compiled call (`step_model_held`), when the balance
         # controller offers them (`Controller.held_torque_step`); the same torques and
         # judgement as its `act`, bit for bit.
-        held_step, held_act, mu = balance.held_torque_step, balance.held_act, balance.mu
-        neg_limit, limit = phys.torque_bounds
-        tau_held = np.empty(len(limit))
-        for k in range(r.steps):
+        self._held_step, self._held_act = balance.held_torque_step, balance.held_act
+        self._mu = balance.mu
+        self._neg_limit, self._limit = phys.torque_bounds
+        self._tau_held = np.empty(len(self._limit))
+        self._held: tuple[int, float] | None = None  # this step's (wrench code, top) if held
+        self._obs: Observation | None = None  # this step's observation if not held
+        self._support = (0.0, 0.0)  # this step's support edges (stance feet)
+
+    def steps(self, stop_above: Callable[[], float] | None) -> bool:
+        """Simulate the clip's steps: observe, act, step the physics, record, check the task.
+        True when `stop_above` cut the run."""
+        observe, act, step_physics, record = (self._observe, self._act, self._step_physics,
+                                              self._record)
+        check_task = self._check_task if self.releasable is not None else None
+        cut_due = self._cut_rule(stop_above) if stop_above is not None else None
+        rec = self.rec
+        n = self.rollout.steps
+        for k in range(n):
             t = k * DT
-            if (stop_above is not None and k % CUT_CHECK_STEPS == 0 and not lost
-                    and min(math.sqrt(sq_sum), f0) > stop_above()):
-                cut = True
+            if cut_due is not None and k % CUT_CHECK_STEPS == 0 and cut_due():
+                self.k_done = k
+                return True
+            s = observe(k, t)
+            if s is None or not act(t, s):  # a fall ends the clip
                 break
-            q, qd = read_state()
-            if k % DIVERGENCE_CHECK_STEPS == 0:
-                self._check_divergence(qd, t)
-            held = active is balance and held_step()
-            if held:
-                lo, hi, clearance, code, _cop, top = step_model_held(
-                    q, qd, *pargs, balance.qdd, mu, neg_limit, limit, tau_held)
-                stance = None
-                o_Js, o_pts, o_sole = Js, pts, sole_x
-            else:
-                lo, hi, clearance = step_model_packed(q, qd, *pargs)
-                stance = active.stance
-                if stance is not None:
-                    # New arrays for the stance feet only; the full ones stay the model's.
-                    o_Js, o_pts, o_sole, (lo, hi) = stance_terms(Js, pts, sole_x, (lo, hi),
-                                                                 stance, n_feet)
-                else:
-                    o_Js, o_pts, o_sole = Js, pts, sole_x
-            s = 0.5 * (lo + hi)
-            if clearance < 0.0 or c[1] < cm_floor:  # the body's own fall rules: the clip ends
-                if self.fall_time is None:
-                    self._fall(t, "body_contact" if clearance < 0.0 else "cm_drop", c, cd, s)
-                break
-            if held:
-                held_act(code, top)
-                tau = None  # tau_held, clamped
-            else:
-                tau = active.act(Observation(q, qd, M, h, c, cd, A_L, A_H, o_Js, o_pts, o_sole,
-                                             (lo, hi), stance), t)
-            if not lost:
-                c_ref = balance.c_ref
-                if active.lost is not None:  # the controller's own fall
-                    lost = True
-                    self._fall(t, f"balance_lost:{active.lost}", c, cd, s)
-                    if rec is None:
-                        break
-                    active, tau = self._hand_over(Observation(
-                        q, qd, M, h, c, cd, A_L, A_H, o_Js, o_pts, o_sole, (lo, hi), stance), t)
-            if rec is not None and k % FRAME_EVERY == 0:
-                rec.frame(t, c, c_ref, (lo, hi))
-            # The world's step: torques, the task's events, contacts, ODE, contact feedback.
-            if tau is None:
-                add_clamped(tau_held.tolist())
-            else:
-                apply_torques(tau)
-            if events:
-                task.before_step(phys, t)
-            make_contacts(pts, foot_of_point)
-            if has_props:
-                phys.collide_props()
-            world_step()
-            fy, _fx, cop = contact_forces()
-            if events:
-                task.after_step(phys, t + DT)
-                if (releasable is not None and releasable.released_at is None and not lost
-                        and task.interaction_failed(phys, t + DT)):
-                    releasable.release(t + DT)
-            clear_contacts()
-            k_done = k + 1
-            # The CP error: NaN without ground contact or after balance was lost.
-            e = math.nan
-            if fy > MIN_CONTACT_FORCE and not lost:
-                e = cop - s
-                sq_sum += e * e
-                if abs(e) > max_e:  # max(max_e, |e|) without the builtin's call
-                    max_e = abs(e)
-                contact_steps += 1
-            if rec is not None:
-                rec.trace(k, t + DT, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c,
-                          c_ref, fy)
-        self.sq_sum, self.max_e, self.contact_steps, self.k_done = (sq_sum, max_e,
-                                                                    contact_steps, k_done)
-        return cut
+            if rec is not None and k % FRAME_EVERY == 0:  # the state before this step
+                rec.frame(t, self._c, self.c_ref, self._support)
+            fy, cop = step_physics(t)
+            record(k, t + DT, fy, cop, s)
+            if check_task is not None:
+                check_task(t + DT)
+        else:
+            k = n
+        self.k_done = k
+        return False
+
+    def _cut_rule(self, stop_above: Callable[[], float]) -> Callable[[], bool]:
+        """Whether to stop now: the objective's lower bound above the bound `stop_above`
+        reads (never once balance is lost)."""
+        f0 = self.f0
+
+        def due() -> bool:
+            return not self.lost and min(math.sqrt(self.sq_sum), f0) > stop_above()
+
+        return due
+
+    def _observe(self, k: int, t: float) -> float | None:
+        """Observe at t: the state read from ODE (checked for divergence every
+        DIVERGENCE_CHECK_STEPS steps) and the model terms; on a held step also its clamped
+        torques (`step_model_held`). The support centre (of the stance feet), or None when
+        the body's own fall rules (a body on the ground, the CM dropped) end the clip."""
+        q, qd = self._read_state()
+        if k % DIVERGENCE_CHECK_STEPS == 0:
+            self._check_divergence(qd, t)
+        if self.active is self.balance and self._held_step():
+            lo, hi, clearance, code, _cop, top = step_model_held(
+                q, qd, *self._pargs, self.balance.qdd, self._mu, self._neg_limit, self._limit,
+                self._tau_held)
+            self._held = (code, top)
+            self._support = support = (lo, hi)
+        else:
+            lo, hi, clearance = step_model_packed(q, qd, *self._pargs)
+            self._held = None
+            self._obs = obs = self._observation((lo, hi), self.active.stance)
+            self._support = support = obs.support
+        s = 0.5 * (support[0] + support[1])
+        if clearance < 0.0 or self._c[1] < self._cm_floor:
+            if self.fall_time is None:
+                self._fall(t, "body_contact" if clearance < 0.0 else "cm_drop", s)
+            return None
+        return s
+
+    def _observation(self, support: tuple[float, float],
+                     stance: tuple[int, ...] | None) -> Observation:
+        """This step's Observation; with a stance, its feet's terms only (new arrays: the full
+        ones stay the model's)."""
+        Js, pts, sole = self._Js, self._pts, self._sole_x
+        if stance is not None:
+            Js, pts, sole, support = stance_terms(Js, pts, sole, support, stance, self._n_feet)
+        return Observation(self._q, self._qd, self._M, self._h, self._c, self._cd, self._A_L,
+                           self._A_H, Js, pts, sole, support, stance)
+
+    def _act(self, t: float, s: float) -> bool:
+        """Act at t: the active controller's torques (a held step's from `_observe`), applied.
+        When the balance controller loses balance, the fall is recorded and, with traces on,
+        the fall controller takes over (the fall is shown); without traces the clip ends there
+        (False)."""
+        held = self._held
+        if held is not None:
+            self._held_act(*held)
+            tau = None  # self._tau_held, clamped
+        else:
+            tau = self.active.act(self._obs, t)
+        if not self.lost:
+            if self.rec is not None:
+                self.c_ref = self.balance.c_ref
+            if self.active.lost is not None:  # the controller's own fall
+                self.lost = True
+                self._fall(t, f"balance_lost:{self.active.lost}", s)
+                if self.rec is None:
+                    return False
+                tau = self._hand_over(t)
+        if tau is None:
+            self._add_clamped(self._tau_held.tolist())
+        else:
+            self._apply_torques(tau)
+        return True
+
+    def _step_physics(self, t: float) -> tuple[float, float]:
+        """Step the physics from t: the last step's contacts dropped, the task's events, the
+        feet's ground contacts and the props' collisions, ODE's step, the feet's contact
+        feedback, the task's events after the step (which may read its contacts). The feet's
+        total normal force (N) and CP x."""
+        phys, task, events = self.phys, self.task, self._events
+        self._clear_contacts()
+        if events:
+            task.before_step(phys, t)
+        self._make_contacts(self._pts, self._foot_of_point)
+        if self._has_props:
+            phys.collide_props()
+        self._world_step()
+        fy, _fx, cop = self._contact_forces()
+        if events:
+            task.after_step(phys, t + DT)
+        return fy, cop
+
+    def _record(self, k: int, t: float, fy: float, cop: float, s: float) -> None:
+        """Record step k, ending at t: its CP error e = cp - s into the objective's sums (NaN
+        without ground contact or after balance was lost, and not summed), and the traces when
+        on."""
+        e = math.nan
+        if fy > MIN_CONTACT_FORCE and not self.lost:
+            e = cop - s
+            self.sq_sum += e * e
+            if abs(e) > self.max_e:  # max(max_e, |e|) without the builtin's call
+                self.max_e = abs(e)
+            self.contact_steps += 1
+        if self.rec is not None:
+            self.rec.trace(k, t, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, self._c,
+                           self.c_ref, fy)
+
+    def _check_task(self, t: float) -> None:
+        """Check the task after the step ending at t: an interaction it reports failed while
+        the CMRT is held releases the CMRT."""
+        releasable = self.releasable
+        if (releasable.released_at is None and not self.lost
+                and self.task.interaction_failed(self.phys, t)):
+            releasable.release(t)
 
     def _check_divergence(self, qd: np.ndarray, t: float) -> None:
         why = self.phys.diverged(qd)
@@ -309,18 +377,19 @@ class _Clip:
             raise DivergenceError(f"{self.rollout.spec.name}: the simulation diverged at "
                                   f"t = {t:.3f} s ({why})")
 
-    def _fall(self, t: float, reason: str, c: np.ndarray, cd: np.ndarray, s: float) -> None:
+    def _fall(self, t: float, reason: str, s: float) -> None:
         """Record the clip's fall at t: its reason and direction (the CM's capture point's side
         of the support centre s)."""
         self.fall_time, self.fall_reason = t, reason
-        self.direction = fall_direction(c, cd, s)
+        self.direction = fall_direction(self._c, self._cd, s)
 
-    def _hand_over(self, obs: Observation, t: float) -> tuple[Controller, np.ndarray]:
-        """The fall controller takes over from this step (traces on: the fall is shown); it
-        and its torques for this step."""
-        fall = self.rollout.fall_controller
+    def _hand_over(self, t: float) -> np.ndarray:
+        """The fall controller takes over from this step (traces on: the fall is shown); its
+        torques for this step."""
+        obs = self._obs if self._held is None else self._observation(self._support, None)
+        fall = self.active = self.rollout.fall_controller
         fall.reset(obs)
-        return fall, fall.act(obs, t)
+        return fall.act(obs, t)
 
     def cut(self, cpu0: float) -> Evaluation:
         """The result of a run stopped by `stop_above`: its objective's lower bound."""

@@ -1,14 +1,23 @@
-"""The CMRT library and PCA bases: `LibraryRepository` (the contract) and `SqlLibrary`."""
+"""The CMRT library and PCA bases: `LibraryRepository` (the contract) and `SqlLibrary`.
+
+The library is append-only: a CMRT is added, never updated or deleted (no route, command or
+store call does either). So `SqlLibrary` keeps what it has read (the library's hot path, a
+query answered from one family's keys and two members, is then one indexed count instead of
+decoding every member's JSON at every request): records by id for good, and each family's
+keys checked at every read against the store's count and newest time of that family, so a
+CMRT another process added is seen at the next read."""
 
 from __future__ import annotations
 
 import abc
 import math
+import threading
 import uuid
-from collections.abc import Mapping, Sequence
+from collections import OrderedDict
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from sqlalchemy import Text, and_, cast, func, select
+from sqlalchemy import Text, and_, bindparam, cast, func, select
 from sqlalchemy.exc import IntegrityError
 
 from store.errors import Conflict, NotFound
@@ -23,6 +32,7 @@ from store.records import (
     VerificationRecord,
 )
 from store.sql import (
+    _CMRT_RECORD_FIELDS,
     SqlBase,
     _basis_record,
     _cmrt_record,
@@ -71,6 +81,19 @@ class LibraryRepository(abc.ABC):
         objective first). Only CMRTs having all named parameters match. `character` keeps
         entries whose character has the given items (e.g. {"height": 1.75}).
         """
+
+    @abc.abstractmethod
+    def find_cmrt_keys(
+        self,
+        family: str,
+        params: Mapping[str, float],
+        *,
+        tolerance: float | Mapping[str, float] | None = None,
+        character: Mapping[str, Any] | None = None,
+        limit: int | None = None,
+    ) -> list[CmrtKey]:
+        """`find_cmrts`'s CMRTs, in its order, as keys: their summary without curve, spline
+        or spec (a list of matches reads no CMRT's JSON beyond its family's keys)."""
 
     @abc.abstractmethod
     def list_cmrts(
@@ -130,7 +153,97 @@ class LibraryRepository(abc.ABC):
         """The basis; raises NotFound."""
 
 
+# JSON columns keep a Python None as the JSON text `null`, not SQL NULL.
+_HAS_SPEC = and_(CmrtRow.spec.is_not(None), cast(CmrtRow.spec, Text) != "null")
+#: A family's keys (`cmrt_keys`), newest first, and what tells whether kept keys are current:
+#: the family's count and newest time (rows are only ever added). Built once: building a
+#: statement costs more than running it on a warm database.
+_FAMILY_KEYS = (
+    select(CmrtRow.id, CmrtRow.task_parameters, CmrtRow.objective, CmrtRow.knots,
+           CmrtRow.values, _HAS_SPEC, CmrtRow.created_at, CmrtRow.preparation, CmrtRow.decay,
+           CmrtRow.character, CmrtRow.family, CmrtRow.objective_without, CmrtRow.winner,
+           CmrtRow.fell, CmrtRow.job_id)
+    .where(CmrtRow.family == bindparam("family")).order_by(CmrtRow.created_at.desc(), CmrtRow.id))
+_FAMILY_STAMP = select(func.count(), func.max(CmrtRow.created_at)).where(
+    CmrtRow.family == bindparam("family"))
+
+#: Library records by id, as Core rows in `CmrtRecord`'s field order (no ORM objects made).
+_RECORDS = select(*(CmrtRow.__table__.c[name] for name in _CMRT_RECORD_FIELDS)).where(
+    CmrtRow.id.in_(bindparam("ids", expanding=True)))
+
+#: Library records kept in memory per repository (about 10 kB each with curve and spec): the
+#: members a busy library's queries read over and over, 40 MB at the most.
+RECORDS_KEPT = 4096
+#: Families whose keys are kept (about 60 kB for 50 members).
+FAMILIES_KEPT = 512
+
+
+class _Kept:
+    """What `SqlLibrary` has read: records by id and families' keys with their stamp, both
+    least recently used first (thread-safe: the service reads on several threads)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.records: OrderedDict[str, CmrtRecord] = OrderedDict()
+        self.keys: OrderedDict[str, tuple[tuple[Any, ...], list[CmrtKey]]] = OrderedDict()
+
+    def record(self, cmrt_id: str) -> CmrtRecord | None:
+        with self.lock:
+            rec = self.records.get(cmrt_id)
+            if rec is not None:
+                self.records.move_to_end(cmrt_id)
+            return rec
+
+    def keep_records(self, recs: Iterable[CmrtRecord]) -> None:
+        with self.lock:
+            for r in recs:
+                self.records[r.id] = r
+                self.records.move_to_end(r.id)
+            while len(self.records) > RECORDS_KEPT:
+                self.records.popitem(last=False)
+
+    def family_keys(self, family: str, stamp: tuple[Any, ...]) -> list[CmrtKey] | None:
+        with self.lock:
+            got = self.keys.get(family)
+            if got is None or got[0] != stamp:
+                return None
+            self.keys.move_to_end(family)
+            return got[1]
+
+    def keep_keys(self, family: str, stamp: tuple[Any, ...], keys: list[CmrtKey]) -> None:
+        with self.lock:
+            self.keys[family] = (stamp, keys)
+            self.keys.move_to_end(family)
+            while len(self.keys) > FAMILIES_KEPT:
+                self.keys.popitem(last=False)
+
+
 class SqlLibrary(SqlBase, LibraryRepository):
+    @property
+    def _kept(self) -> _Kept:
+        kept = self.__dict__.get("_kept_library")
+        if kept is None:  # made on first use: SqlBase.__init__ is the repository's one __init__
+            kept = self.__dict__.setdefault("_kept_library", _Kept())
+        return kept
+
+    def _records(self, ids: Sequence[str]) -> dict[str, CmrtRecord]:
+        """The records of `ids` that exist: kept ones from memory, the rest in one query."""
+        out: dict[str, CmrtRecord] = {}
+        missing = []
+        for cid in ids:
+            rec = self._kept.record(cid)
+            if rec is None:
+                missing.append(cid)
+            else:
+                out[cid] = rec
+        if missing:
+            with self._read_core() as conn:
+                got = [CmrtRecord(**row._mapping)
+                       for row in conn.execute(_RECORDS, {"ids": missing})]
+            self._kept.keep_records(got)
+            out.update((r.id, r) for r in got)
+        return out
+
     # ---- CMRT library -------------------------------------------------------------------
     def add_cmrt(self, entry):
         e = entry
@@ -172,13 +285,21 @@ class SqlLibrary(SqlBase, LibraryRepository):
             return None if row is None else _cmrt_record(row)
 
     def get_cmrt(self, cmrt_id):
-        with self._read() as s:
-            row = s.get(CmrtRow, cmrt_id)
-            if row is None:
-                raise NotFound(f"CMRT {cmrt_id!a} not found")
-            return _cmrt_record(row)
+        rec = self._kept.record(cmrt_id)
+        if rec is not None:
+            return rec
+        rec = self._records([cmrt_id]).get(cmrt_id)
+        if rec is None:
+            raise NotFound(f"CMRT {cmrt_id!a} not found")
+        return rec
 
     def find_cmrts(self, family, params, *, tolerance=None, character=None, limit=None):
+        keys = self.find_cmrt_keys(family, params, tolerance=tolerance, character=character,
+                                   limit=limit)
+        by_id = self._records([k.id for k in keys])
+        return [by_id[k.id] for k in keys if k.id in by_id]
+
+    def find_cmrt_keys(self, family, params, *, tolerance=None, character=None, limit=None):
         target = {k: _num(v, f"parameter {k!r}", allow_inf=False) for k, v in params.items()}
         tol: dict[str, float | None] = {}
         for name in target:
@@ -186,43 +307,24 @@ class SqlLibrary(SqlBase, LibraryRepository):
             if t is not None and (not math.isfinite(t) or t < 0):
                 raise ValueError(f"tolerance for {name!r} must be finite and >= 0")
             tol[name] = t
-        q = select(CmrtRow).where(CmrtRow.family == family)
-        for name, v in target.items():
-            half = tol[name] if tol[name] is not None else _exact_eps(v)
-            q = q.where(
-                CmrtRow.id.in_(
-                    select(CmrtParameterRow.cmrt_id).where(
-                        CmrtParameterRow.name == name,
-                        CmrtParameterRow.value.between(v - half, v + half),
-                    )
-                )
-            )
-        with self._read() as s:
-            rows = s.scalars(q).all()
-            recs = [_cmrt_record(r) for r in rows]
-            stored: dict[str, dict[str, float]] = {r.id: {} for r in recs}
-            if recs and target:
-                for cid, name, value in s.execute(
-                    select(CmrtParameterRow.cmrt_id, CmrtParameterRow.name,
-                           CmrtParameterRow.value).where(
-                        CmrtParameterRow.cmrt_id.in_(list(stored)),
-                        CmrtParameterRow.name.in_(list(target)),
-                    )
-                ):
-                    stored[cid][name] = value
-        if character:
-            recs = [r for r in recs if _character_matches(r.character, character)]
-
-        def distance(r: CmrtRecord) -> float:
+        # Kept keys (checked against the store) hold every member's task parameters: the
+        # same numbers as the parameter rows, compared as SQL's `BETWEEN` would.
+        found: list[tuple[float, CmrtKey]] = []
+        for k in self.cmrt_keys(family):
             total = 0.0
             for name, v in target.items():
-                d = stored[r.id][name] - v
-                t = tol[name]
+                half = tol[name] if tol[name] is not None else _exact_eps(v)
+                x = k.task_parameters.get(name)
+                if x is None or not v - half <= x <= v + half:
+                    break
+                d, t = x - v, tol[name]
                 total += (d / t) ** 2 if t else (0.0 if abs(d) <= _exact_eps(v) else math.inf)
-            return math.sqrt(total)
-
-        recs.sort(key=lambda r: (distance(r), r.objective, r.created_at, r.id))
-        return recs if limit is None else recs[:limit]
+            else:
+                if not character or _character_matches(k.character or {}, character):
+                    found.append((math.sqrt(total), k))
+        found.sort(key=lambda dk: (dk[0], dk[1].objective, dk[1].created_at, dk[1].id))
+        keys = [k for _, k in found]
+        return keys if limit is None else keys[:limit]
 
     def list_cmrts(self, family=None, *, limit=None, offset=0):
         conds = [] if family is None else [CmrtRow.family == family]
@@ -233,22 +335,24 @@ class SqlLibrary(SqlBase, LibraryRepository):
             return [_cmrt_record(r) for r in rows], int(total)
 
     def cmrt_keys(self, family):
-        # JSON columns keep a Python None as the JSON text `null`, not SQL NULL.
-        has_spec = and_(CmrtRow.spec.is_not(None), cast(CmrtRow.spec, Text) != "null")
-        q = (select(CmrtRow.id, CmrtRow.task_parameters, CmrtRow.objective, CmrtRow.knots,
-                    CmrtRow.values, has_spec, CmrtRow.created_at, CmrtRow.preparation,
-                    CmrtRow.decay, CmrtRow.character)
-             .where(CmrtRow.family == family).order_by(CmrtRow.created_at.desc(), CmrtRow.id))
-        with self._read() as s:
-            rows = s.execute(q).all()
-        return [
+        with self._read_core() as conn:
+            stamp = tuple(conn.execute(_FAMILY_STAMP, {"family": family}).one())
+            kept = self._kept.family_keys(family, stamp)
+            if kept is not None:
+                return list(kept)
+            rows = conn.execute(_FAMILY_KEYS, {"family": family}).all()
+        keys = [
             CmrtKey(id=cid, task_parameters={k: float(v) for k, v in tp.items()},
                     objective=float(obj), knots=len(knots),
                     vertical=bool(values) and isinstance(values[0], list),
                     has_spec=bool(spec), created_at=created, preparation=float(prep),
-                    decay=float(dec), character=character)
-            for cid, tp, obj, knots, values, spec, created, prep, dec, character in rows
+                    decay=float(dec), character=character, family=fam,
+                    objective_without=without, winner=winner, fell=bool(fell), job_id=job)
+            for (cid, tp, obj, knots, values, spec, created, prep, dec, character, fam, without,
+                 winner, fell, job) in rows
         ]
+        self._kept.keep_keys(family, stamp, keys)
+        return list(keys)
 
     def cmrt_families(self):
         with self._read() as s:

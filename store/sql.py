@@ -14,7 +14,7 @@ from typing import Any
 from sqlalchemy import Connection, Engine, select
 from sqlalchemy.orm import Session
 
-from store.db import session_scope
+from store.db import READ_ONLY_OPTION, session_scope
 from store.errors import NotFound
 from store.models import BasisRow, CmrtRow, EvaluationRow, GenerationRow, JobRow
 from store.records import (
@@ -120,6 +120,7 @@ class SqlBase:
         self.engine = engine
         self._clock = clock
         self._postgres = engine.dialect.name == "postgresql"
+        self._read_engine = engine.execution_options(**{READ_ONLY_OPTION: True})
 
     # ---- helpers ------------------------------------------------------------------------
     def _write(self) -> Any:
@@ -139,6 +140,10 @@ class SqlBase:
 
     def _read(self) -> Any:
         return session_scope(self.engine, read_only=True)
+
+    def _read_core(self) -> Any:
+        """A Core connection in one read-only transaction (no ORM session: the hot reads)."""
+        return self._read_engine.begin()
 
     @staticmethod
     def _lock_job(s: Session, job_id: str) -> JobRow:

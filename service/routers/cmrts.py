@@ -48,8 +48,9 @@ def find_cmrts(
     if not params:
         items, total = repo.list_cmrts(family, limit=limit, offset=offset)
     else:
+        find = repo.find_cmrts if curves else repo.find_cmrt_keys  # keys: no JSON read
         try:
-            found = repo.find_cmrts(family, params, tolerance=tolerance)
+            found = find(family, params, tolerance=tolerance)
         except ValueError as err:
             raise HttpError(422, str(err)) from None
         total, items = len(found), found[offset:offset + limit]

@@ -42,7 +42,7 @@ class Observation:
     """The character's state and model terms at one step (see sim.dynamics.step_model).
 
     The rollout writes every step's values into the same arrays (`Physics.read_state`,
-    `sim.dynamics.step_model_into`): a controller that keeps one past its step copies it."""
+    `sim.dynamics.step_model_packed`): a controller that keeps one past its step copies it."""
 
     q: np.ndarray  # generalised coordinates [root x, y, angle, hinges]
     qd: np.ndarray

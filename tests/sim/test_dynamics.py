@@ -98,8 +98,7 @@ def test_forward_kinematics_matches_ode(ch, arrays, world):
         q, qd = random_state(ch, rng, 1.0)
         world.reset(q, qd)
         alpha, p, o = forward_kinematics(q, arrays.parent, arrays.a_par, arrays.a_chi)
-        for b in range(ch.n_bodies):
-            x, y, ang = world.body_state(b)
+        for b, (x, y, ang) in enumerate(world.poses()[:ch.n_bodies]):
             worst_p = max(worst_p, math.hypot(x - p[b, 0], y - p[b, 1]))
             d = (ang - alpha[b] + math.pi) % (2 * math.pi) - math.pi
             worst_a = max(worst_a, abs(d))
@@ -155,8 +154,8 @@ def _check_hinge_sign(ch, world, i):
     world.reset(q)
     q_read, _ = world.read_state()
     assert q_read[ROOT_DOF + i] == pytest.approx(base + 0.3, abs=1e-12)
-    ang_child = world.body_state(child)[2]
-    ang_parent = world.body_state(parent)[2]
+    ang_child = world.poses()[child][2]
+    ang_parent = world.poses()[parent][2]
     # Child's world angle = parent's + hinge angle: counter-clockwise about +z is positive.
     assert ang_child - ang_parent == pytest.approx(base + 0.3, abs=1e-12)
 

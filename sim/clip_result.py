@@ -1,4 +1,5 @@
-"""The result of simulating one clip: `Evaluation`, JSON-serialisable."""
+"""The result of simulating one clip: `Evaluation` (the scores and outcome) with its optional
+`Traces` (1 kHz) and replay `Frames`, all JSON-serialisable."""
 
 from __future__ import annotations
 
