@@ -21,7 +21,7 @@ from sqlalchemy import Text, and_, bindparam, cast, func, select
 from sqlalchemy.exc import IntegrityError
 
 from store.errors import Conflict, NotFound
-from store.models import Basis, Cmrt, CmrtParameter, CmrtVerification, Job
+from store.models import BasisRow, CmrtParameterRow, CmrtRow, CmrtVerificationRow, JobRow
 from store.records import (
     CMRT_ENTRY_FIELDS,
     WINNERS,
@@ -154,21 +154,22 @@ class LibraryRepository(abc.ABC):
 
 
 # JSON columns keep a Python None as the JSON text `null`, not SQL NULL.
-_HAS_SPEC = and_(Cmrt.spec.is_not(None), cast(Cmrt.spec, Text) != "null")
+_HAS_SPEC = and_(CmrtRow.spec.is_not(None), cast(CmrtRow.spec, Text) != "null")
 #: A family's keys (`cmrt_keys`), newest first, and what tells whether kept keys are current:
 #: the family's count and newest time (rows are only ever added). Built once: building a
 #: statement costs more than running it on a warm database.
 _FAMILY_KEYS = (
-    select(Cmrt.id, Cmrt.task_parameters, Cmrt.objective, Cmrt.knots, Cmrt.values, _HAS_SPEC,
-           Cmrt.created_at, Cmrt.preparation, Cmrt.decay, Cmrt.character, Cmrt.family,
-           Cmrt.objective_without, Cmrt.winner, Cmrt.fell, Cmrt.job_id)
-    .where(Cmrt.family == bindparam("family")).order_by(Cmrt.created_at.desc(), Cmrt.id))
-_FAMILY_STAMP = select(func.count(), func.max(Cmrt.created_at)).where(
-    Cmrt.family == bindparam("family"))
+    select(CmrtRow.id, CmrtRow.task_parameters, CmrtRow.objective, CmrtRow.knots,
+           CmrtRow.values, _HAS_SPEC, CmrtRow.created_at, CmrtRow.preparation, CmrtRow.decay,
+           CmrtRow.character, CmrtRow.family, CmrtRow.objective_without, CmrtRow.winner,
+           CmrtRow.fell, CmrtRow.job_id)
+    .where(CmrtRow.family == bindparam("family")).order_by(CmrtRow.created_at.desc(), CmrtRow.id))
+_FAMILY_STAMP = select(func.count(), func.max(CmrtRow.created_at)).where(
+    CmrtRow.family == bindparam("family"))
 
 #: Library records by id, as Core rows in `CmrtRecord`'s field order (no ORM objects made).
-_RECORDS = select(*(Cmrt.__table__.c[name] for name in _CMRT_RECORD_FIELDS)).where(
-    Cmrt.id.in_(bindparam("ids", expanding=True)))
+_RECORDS = select(*(CmrtRow.__table__.c[name] for name in _CMRT_RECORD_FIELDS)).where(
+    CmrtRow.id.in_(bindparam("ids", expanding=True)))
 
 #: Library records kept in memory per repository (about 10 kB each with curve and spec): the
 #: members a busy library's queries read over and over, 40 MB at the most.
@@ -266,19 +267,20 @@ class SqlLibrary(SqlBase, LibraryRepository):
             fell_without=None if e.fell_without is None else bool(e.fell_without),
             spec=_json(None if e.spec is None else dict(e.spec), "spec"),
         )  # fmt: skip
-        row = Cmrt(id=str(uuid.uuid4()), created_at=self._clock(), **values)
+        row = CmrtRow(id=str(uuid.uuid4()), created_at=self._clock(), **values)
         with self._write() as s:
-            if e.job_id is not None and s.get(Job, e.job_id) is None:
+            if e.job_id is not None and s.get(JobRow, e.job_id) is None:
                 raise Conflict(f"job {e.job_id} not found")
             s.add(row)
             s.flush()
-            s.add_all(CmrtParameter(cmrt_id=row.id, name=k, value=v) for k, v in tp.items())
+            s.add_all(CmrtParameterRow(cmrt_id=row.id, name=k, value=v) for k, v in tp.items())
             return row.id
 
     def job_cmrt(self, job_id):
         with self._read() as s:
             row = s.scalars(
-                select(Cmrt).where(Cmrt.job_id == job_id).order_by(Cmrt.created_at).limit(1)
+                select(CmrtRow).where(CmrtRow.job_id == job_id)
+                .order_by(CmrtRow.created_at).limit(1)
             ).one_or_none()
             return None if row is None else _cmrt_record(row)
 
@@ -325,10 +327,10 @@ class SqlLibrary(SqlBase, LibraryRepository):
         return keys if limit is None else keys[:limit]
 
     def list_cmrts(self, family=None, *, limit=None, offset=0):
-        conds = [] if family is None else [Cmrt.family == family]
+        conds = [] if family is None else [CmrtRow.family == family]
         with self._read() as s:
-            total = s.scalar(select(func.count()).select_from(Cmrt).where(*conds)) or 0
-            q = select(Cmrt).where(*conds).order_by(Cmrt.created_at.desc(), Cmrt.id)
+            total = s.scalar(select(func.count()).select_from(CmrtRow).where(*conds)) or 0
+            q = select(CmrtRow).where(*conds).order_by(CmrtRow.created_at.desc(), CmrtRow.id)
             rows = s.scalars(q.limit(limit).offset(offset)).all()
             return [_cmrt_record(r) for r in rows], int(total)
 
@@ -354,13 +356,13 @@ class SqlLibrary(SqlBase, LibraryRepository):
 
     def cmrt_families(self):
         with self._read() as s:
-            rows = s.execute(select(Cmrt.family, func.count()).group_by(Cmrt.family)
-                             .order_by(Cmrt.family)).all()
+            rows = s.execute(select(CmrtRow.family, func.count()).group_by(CmrtRow.family)
+                             .order_by(CmrtRow.family)).all()
             return [(str(f), int(n)) for f, n in rows]
 
     # ---- verified answers ---------------------------------------------------------------
     def add_verification(self, *, family, spec_hash, params_hash, source, members, outcome):
-        row = CmrtVerification(
+        row = CmrtVerificationRow(
             id=str(uuid.uuid4()), family=family, spec_hash=spec_hash, params_hash=params_hash,
             source=source, members=[str(m) for m in members],
             outcome=_json(dict(outcome), "outcome"), created_at=self._clock(),
@@ -376,9 +378,9 @@ class SqlLibrary(SqlBase, LibraryRepository):
 
     def get_verification(self, spec_hash, params_hash):
         with self._read() as s:
-            row = s.scalars(select(CmrtVerification).where(
-                CmrtVerification.spec_hash == spec_hash,
-                CmrtVerification.params_hash == params_hash)).one_or_none()
+            row = s.scalars(select(CmrtVerificationRow).where(
+                CmrtVerificationRow.spec_hash == spec_hash,
+                CmrtVerificationRow.params_hash == params_hash)).one_or_none()
             return None if row is None else _verification_record(row)
 
     # ---- PCA bases ----------------------------------------------------------------------
@@ -387,7 +389,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
         comps = _json(components, "components")
         if k < 1 or len(comps) != k or any(len(row) != len(m) for row in comps):
             raise ValueError(f"components must be {k} rows of length {len(m)}")
-        row = Basis(
+        row = BasisRow(
             id=str(uuid.uuid4()), family=family, k=int(k), mean=m, components=comps,
             variance_explained=_json(variance_explained, "variance_explained"),
             members=[str(x) for x in members], box=_json(box, "box"), created_at=self._clock(),
@@ -397,23 +399,23 @@ class SqlLibrary(SqlBase, LibraryRepository):
             return row.id
 
     def list_bases(self, family=None, *, limit=None, offset=0):
-        conds = [] if family is None else [Basis.family == family]
+        conds = [] if family is None else [BasisRow.family == family]
         with self._read() as s:
-            total = s.scalar(select(func.count()).select_from(Basis).where(*conds)) or 0
-            q = select(Basis).where(*conds).order_by(Basis.created_at.desc(), Basis.id)
+            total = s.scalar(select(func.count()).select_from(BasisRow).where(*conds)) or 0
+            q = select(BasisRow).where(*conds).order_by(BasisRow.created_at.desc(), BasisRow.id)
             rows = s.scalars(q.limit(limit).offset(offset)).all()
             return [_basis_record(b) for b in rows], int(total)
 
     def get_basis(self, basis_id):
         with self._read() as s:
-            row = s.get(Basis, basis_id)
+            row = s.get(BasisRow, basis_id)
             if row is None:
                 raise NotFound(f"basis {basis_id!a} not found")
             return _basis_record(row)
 
 
 
-def _verification_record(v: CmrtVerification) -> VerificationRecord:
+def _verification_record(v: CmrtVerificationRow) -> VerificationRecord:
     return VerificationRecord(
         id=v.id, family=v.family, spec_hash=v.spec_hash, params_hash=v.params_hash,
         source=v.source, members=list(v.members), outcome=dict(v.outcome),
