@@ -4,6 +4,7 @@ a fixed wall time and no CPU, so that this machine's cores stand in for hundreds
 
     .venv/bin/python bench/capacity.py [--workers 8 32 128 256] [--eval 1.0 0.1]
         [--per-instance 32] [--popsize 16] [--jobs-per-worker 0.1] [--seconds 20] [--json]
+        [--driver-from CHECKOUT ...] [--repeat N]
 
 For each worker count W and evaluation time S, on a fresh database and broker:
   * a private PostgreSQL cluster (`initdb` as the `postgres` user, `max_connections` above the
@@ -28,6 +29,9 @@ workers' busy fraction (candidates/s x S / W) and the CPU seconds per candidate 
 redis-server, the PostgreSQL cluster and the workers (parents and pool processes), from /proc;
 each process's CPU is the limit of its own rate (one Python process uses at most one core:
 1000 / its ms per candidate). Memory: the workers' proportional set size (PSS) per process.
+`--driver-from A B` runs the driver's code from other checkouts of the project (each on
+PYTHONPATH, the workers' code from this one), each point measured with A, then B, `--repeat`
+times: a before/after of a driver change in one run, under the same load.
 Needs redis-server and PostgreSQL's server binaries (initdb, pg_ctl), and root (to run them as
 `postgres`). No assertions: figures go to docs/service.md ("Scaling out") with the load.
 """
@@ -52,7 +56,6 @@ from typing import Any
 from bench.celery_throughput import _cpu  # the same CPU account
 
 ROOT = Path(__file__).resolve().parents[1]
-CMRT = ROOT / ".venv" / "bin" / "cmrt"
 #: PostgreSQL connections kept free beside the workers' (driver, scanner, this script).
 PG_SPARE_CONNECTIONS = 50
 
@@ -179,12 +182,13 @@ def _done_by_job(repo: Any) -> dict[str, int]:
 
 
 def measure(workers: int, sleep: float, args: argparse.Namespace, pg: PrivatePostgres,
-            log_dir: Path) -> dict[str, Any]:
-    """One point of the curve (see the module docstring)."""
+            log_dir: Path, driver_root: Path = ROOT) -> dict[str, Any]:
+    """One point of the curve (see the module docstring), the driver's code from the checkout
+    `driver_root` (the workers' from this one)."""
     from sim.spec import parse_spec
     from store import open_repository
 
-    tag = f"w{workers}_s{sleep:g}".replace(".", "p")
+    tag = f"w{workers}_s{sleep:g}_{driver_root.name}_{int(time.time())}".replace(".", "p")
     redis = Redis()
     url = pg.create(f"cap_{tag}")
     repo = open_repository(url)
@@ -210,7 +214,8 @@ def measure(workers: int, sleep: float, args: argparse.Namespace, pg: PrivatePos
         for k in range(args.drivers):
             with open(log_dir / f"{tag}_driver{k}.log", "wb") as log:
                 drivers.append(subprocess.Popen(
-                    [str(CMRT), "driver"], cwd=ROOT, env=env, stdout=log,
+                    [sys.executable, "-m", "cli.main", "driver"], cwd=driver_root,
+                    env={**env, "PYTHONPATH": str(driver_root)}, stdout=log,
                     stderr=subprocess.STDOUT, start_new_session=True))
         procs += drivers
         jobs_n = max(4, math.ceil(args.jobs_per_worker * workers),
@@ -248,7 +253,8 @@ def measure(workers: int, sleep: float, args: argparse.Namespace, pg: PrivatePos
         n_done = total * wall
         return {
             "workers": workers, "instances": instances, "threads": threads,
-            "drivers": args.drivers, "eval_s": sleep, "jobs": jobs_n,
+            "drivers": args.drivers, "driver_from": str(driver_root), "eval_s": sleep,
+            "jobs": jobs_n,
             "popsize": args.popsize, "seconds": wall, "candidates_per_s": total,
             "ideal_per_s": workers / sleep, "busy": total * sleep / workers,
             "job_rate_min": min(rates), "job_rate_max": max(rates),
@@ -311,6 +317,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--popsize", type=int, default=16)
     ap.add_argument("--jobs-per-worker", type=float, default=0.1)
     ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--driver-from", type=Path, nargs="+", default=[ROOT], metavar="DIR",
+                    help="checkouts whose driver code to run (A/B in one run: each point is "
+                         "measured with each, in turn, --repeat times); default: this one")
+    ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if args.cmd == "worker":
@@ -321,10 +331,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for sleep in args.eval:
             for n in args.workers:
-                row = measure(n, sleep, args, pg, log_dir)
-                rows.append(row)
-                if not args.json:
-                    _print_row(row, header=len(rows) == 1)
+                for _ in range(args.repeat):
+                    for root in args.driver_from:
+                        row = measure(n, sleep, args, pg, log_dir, root.resolve())
+                        rows.append(row)
+                        if not args.json:
+                            _print_row(row, header=len(rows) == 1)
     finally:
         pg.close()
     if args.json:
@@ -338,8 +350,9 @@ def _print_row(r: dict[str, Any], header: bool) -> None:
     if header:
         print("| eval s | workers (instances x each) | jobs | candidates/s | of ideal "
               "| job min-max /s | Jain | CPU ms/cand. driver | redis | postgres | workers "
-              "| CPU share driver | redis | postgres | workers | PSS MB/proc | load |")
-        print("|" + "---|" * 16)
+              "| CPU share driver | redis | postgres | workers | PSS MB/proc | load "
+              "| driver from |")
+        print("|" + "---|" * 17)
     c, s = r["cpu_ms_per_candidate"], r["cpu_share"]
     how = f"{r['instances']} x {r['workers'] // r['instances']} " + (
         "threads" if r["threads"] else "proc.")
@@ -348,7 +361,8 @@ def _print_row(r: dict[str, Any], header: bool) -> None:
           f"{r['job_rate_max']:.2f} | {r['jain']:.3f} | {c['driver']:.2f} | {c['redis']:.2f} | "
           f"{c['postgres']:.2f} | {c['workers']:.2f} | {s['driver']:.0%} | {s['redis']:.0%} | "
           f"{s['postgres']:.0%} | {s['workers']:.0%} | {r['worker_pss_mb']:.0f} | "
-          f"{r['load'][0]:.1f}-{r['load'][1]:.1f} |", flush=True)
+          f"{r['load'][0]:.1f}-{r['load'][1]:.1f} | {Path(r['driver_from']).name} |",
+          flush=True)
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Mapping, Sequence
+from dataclasses import fields
 from typing import Any
 
 from sqlalchemy import bindparam, case, func, insert, select, text, update
@@ -25,7 +26,6 @@ from store.records import (
 )
 from store.sql import (
     SqlBase,
-    _evaluation_record,
     _generation_record,
     _json,
     _num,
@@ -71,6 +71,13 @@ _STORE_RESULT = (
     )
 )
 _EVALUATION_ID = select(_EV.c.id).where(*_EV_KEY)
+_GEN = Generation.__table__
+_JOB = Job.__table__
+_JOB_ID = select(_JOB.c.id)
+#: An `EvaluationRecord`'s columns, read as Core rows (no ORM objects: the driver's hot reads).
+_EVALUATION_COLUMNS = tuple(_EV.c[f.name] for f in fields(EvaluationRecord))
+_GENERATION_COLUMNS = tuple(_GEN.c[f.name] for f in fields(GenerationRecord))
+_EVALUATION_COLUMNS_NO_PARAMS = tuple(c for c in _EVALUATION_COLUMNS if c.name != "params")
 #: Give back an attempt of a pending evaluation (a graceful stop cut it short).
 _RELEASE_ATTEMPT = (
     update(_EV)
@@ -200,9 +207,16 @@ class EvaluationRepository(abc.ABC):
         )
 
     @abc.abstractmethod
-    def evaluations(self, job_id: str, generation: int) -> list[EvaluationRecord]:
-        """The generation's evaluations in index order (empty if none). Raises NotFound for
-        an unknown job."""
+    def evaluations(
+        self, job_id: str, generation: int, *, params: bool = True
+    ) -> list[EvaluationRecord]:
+        """The generation's evaluations in index order (empty if none); their `params` None
+        unless `params` (a driver has them already). Raises NotFound for an unknown job."""
+
+    @abc.abstractmethod
+    def pending_indices(self, job_id: str, generation: int) -> list[int]:
+        """The indices of the generation's evaluations still pending, ascending (no row
+        decoded: what a driver sends)."""
 
     @abc.abstractmethod
     def evaluation_counts(self, job_id: str, generation: int) -> GenerationCounts:
@@ -239,30 +253,33 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
         cands = _json(candidates, "candidates")
         bparams = _json(best_params, "best_params")
         state = None if optimizer_state is None else bytes(optimizer_state)
-        with self._write() as s:
-            job = self._lock_job(s, job_id)
-            existing = s.scalars(
-                select(Generation)
-                .options(undefer(Generation.optimizer_state))
-                .where(Generation.job_id == job_id, Generation.iteration == iteration)
-            ).one_or_none()
+        # Core statements in one transaction, no ORM objects (the driver writes one per
+        # generation); the job's row is locked and only the two columns read that decide
+        with self.engine.begin() as conn:
+            job = self._lock_job_columns(conn, job_id, _JOB.c.iterations, _JOB.c.best_objective)
+            existing = conn.execute(
+                select(*_GENERATION_COLUMNS)
+                .where(_GEN.c.job_id == job_id, _GEN.c.iteration == iteration)
+            ).first()
             if existing is not None:
-                return _generation_record(existing, True)
-            gen = Generation(
-                job_id=job_id, iteration=int(iteration), evaluations=int(evaluations),
-                candidates=cands, optimizer_state=state, created_at=self._clock(), **fig,
-            )  # fmt: skip
-            s.add(gen)
+                return GenerationRecord(**existing._mapping)
+            row = {
+                "job_id": job_id, "iteration": int(iteration), "evaluations": int(evaluations),
+                "candidates": cands, "optimizer_state": state, "created_at": self._clock(),
+                **fig,
+            }  # fmt: skip
+            conn.execute(insert(_GEN), [row])
+            changes: dict[str, Any] = {}
             if iteration + 1 > job.iterations:
-                job.iterations = int(iteration) + 1
-                job.evaluations = int(evaluations)
-                job.optimizer_state = state
+                changes.update(iterations=int(iteration) + 1, evaluations=int(evaluations),
+                               optimizer_state=state)
             if job.best_objective is None or fig["best"] < job.best_objective:
-                job.best_objective = fig["best"]
+                changes["best_objective"] = fig["best"]
                 if bparams is not None:
-                    job.best_params = bparams
-            s.flush()
-            return _generation_record(gen, True)
+                    changes["best_params"] = bparams
+            if changes:
+                conn.execute(update(_JOB).where(_JOB.c.id == job_id).values(**changes))
+            return GenerationRecord(**row)
 
     def latest_generation(self, job_id):
         with self._read() as s:
@@ -291,12 +308,12 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
     def put_pending_evaluations(self, job_id, generation, params_list):
         rows = [_json(p, "params") for p in params_list]
         now = self._clock()
-        with self._write() as s:
-            self._lock_job(s, job_id)
+        with self.engine.begin() as conn:  # Core, as record_generation
+            self._lock_job_columns(conn, job_id, _JOB.c.id)
             have = set(
-                s.scalars(
-                    select(Evaluation.index).where(
-                        Evaluation.job_id == job_id, Evaluation.generation == generation
+                conn.scalars(
+                    select(_EV.c.index).where(
+                        _EV.c.job_id == job_id, _EV.c.generation == generation
                     )
                 )
             )
@@ -305,9 +322,9 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
                  "status": PENDING, "attempts": 0, "created_at": now, "updated_at": now}
                 for i, p in enumerate(rows) if i not in have
             ]
-            if new:  # one bulk INSERT, no ORM objects: the unit of work it replaces took
-                # 17 % of the job driver's CPU (bench/capacity.py, profiled)
-                s.execute(insert(Evaluation), new)
+            if new:  # one bulk INSERT of the table, no ORM objects: the unit of work it
+                # replaces took 17 % of the job driver's CPU (bench/capacity.py, profiled)
+                conn.execute(insert(_EV), new)
             return len(new)
 
     def claim_evaluation(self, job_id, generation, index):
@@ -353,22 +370,34 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
                 raise NotFound(f"evaluation ({job_id!a}, {generation}, {index}) not found")
             return False
 
-    def evaluations(self, job_id, generation):
-        with self._read() as s:
-            self._require_job(s, job_id)
-            rows = s.scalars(
-                select(Evaluation)
-                .where(Evaluation.job_id == job_id, Evaluation.generation == generation)
-                .order_by(Evaluation.index)
+    def evaluations(self, job_id, generation, *, params=True):
+        columns = _EVALUATION_COLUMNS if params else _EVALUATION_COLUMNS_NO_PARAMS
+        with self._read_statement() as conn:
+            rows = conn.execute(
+                select(*columns)
+                .where(_EV.c.job_id == job_id, _EV.c.generation == generation)
+                .order_by(_EV.c.index)
             ).all()
-            return [_evaluation_record(e) for e in rows]
+            if not rows and conn.execute(_JOB_ID.where(_JOB.c.id == job_id)).first() is None:
+                raise NotFound(f"job {job_id!a} not found")
+        return [EvaluationRecord(**r._mapping, **({} if params else {"params": None}))
+                for r in rows]
+
+    def pending_indices(self, job_id, generation):
+        with self._read_statement() as conn:
+            return list(conn.scalars(
+                select(_EV.c.index)
+                .where(_EV.c.job_id == job_id, _EV.c.generation == generation,
+                       _EV.c.status == PENDING)
+                .order_by(_EV.c.index)
+            ))
 
     @staticmethod
-    def _counts(s: Session, job_id: str, generation: int) -> GenerationCounts:
+    def _counts(s: Session | Any, job_id: str, generation: int) -> GenerationCounts:
         rows = s.execute(
-            select(Evaluation.status, func.count())
-            .where(Evaluation.job_id == job_id, Evaluation.generation == generation)
-            .group_by(Evaluation.status)
+            select(_EV.c.status, func.count())
+            .where(_EV.c.job_id == job_id, _EV.c.generation == generation)
+            .group_by(_EV.c.status)
         ).all()
         by = {st: int(n) for st, n in rows}
         return GenerationCounts(
@@ -376,8 +405,8 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
         )
 
     def evaluation_counts(self, job_id, generation):
-        with self._read() as s:
-            return self._counts(s, job_id, generation)
+        with self._read_statement() as conn:
+            return self._counts(conn, job_id, generation)
 
     def evaluation_summary(self, job_id, *, after=-1):
         ev = Evaluation

@@ -84,6 +84,11 @@ class JobRepository(abc.ABC):
         rest of the row: a driver polls it twice a second); raises NotFound."""
 
     @abc.abstractmethod
+    def cancel_flags(self, job_ids: Iterable[str]) -> dict[str, bool]:
+        """Each job's `cancel_requested`, in one read (a driver process polls those of all
+        its jobs at once); a job that does not exist is left out."""
+
+    @abc.abstractmethod
     def list_jobs(
         self,
         *,
@@ -200,11 +205,21 @@ class SqlJobs(SqlBase, JobRepository):
             conn.execute(_PING).first()
 
     def cancel_requested(self, job_id):
-        with self._read() as s:
-            flag = s.execute(select(JobRow.cancel_requested).where(JobRow.id == job_id)).scalar()
-            if flag is None:
-                raise NotFound(f"job {job_id!a} not found")
-            return bool(flag)
+        with self._read_statement() as conn:
+            flag = conn.execute(
+                select(JobRow.cancel_requested).where(JobRow.id == job_id)).scalar()
+        if flag is None:
+            raise NotFound(f"job {job_id!a} not found")
+        return bool(flag)
+
+    def cancel_flags(self, job_ids):
+        ids = list(job_ids)
+        if not ids:
+            return {}
+        with self._read_statement() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.cancel_requested).where(JobRow.id.in_(ids))).all()
+        return {job_id: bool(flag) for job_id, flag in rows}
 
     def list_jobs(self, *, status=None, family=None, limit=50, offset=0):
         conds = []

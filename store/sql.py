@@ -145,6 +145,18 @@ class SqlBase:
         """A Core connection in one read-only transaction (no ORM session: the hot reads)."""
         return self._read_engine.begin()
 
+    @contextmanager
+    def _read_statement(self) -> Iterator[Connection]:
+        """A Core connection for one read statement: PostgreSQL in autocommit mode (the
+        statement is its own consistent snapshot; no BEGIN and COMMIT round trips), SQLite in
+        one read transaction (`_read_core`). The driver's reads of every generation."""
+        if self._postgres:
+            with self.engine.connect() as conn:
+                yield conn.execution_options(isolation_level="AUTOCOMMIT")
+        else:
+            with self._read_core() as conn:
+                yield conn
+
     @staticmethod
     def _lock_job(s: Session, job_id: str) -> JobRow:
         """Load and lock the job row (PostgreSQL: FOR NO KEY UPDATE; SQLite: the write
@@ -155,6 +167,18 @@ class SqlBase:
         if job is None:
             raise NotFound(f"job {job_id!a} not found")
         return job
+
+    @staticmethod
+    def _lock_job_columns(s: Session | Connection, job_id: str, *columns: Any) -> Any:
+        """Lock the job row as `_lock_job` does and read only `columns` of it (a Core row:
+        no spec, start or best parameters decoded)."""
+        row = s.execute(
+            select(*columns).where(JobRow.__table__.c.id == job_id)
+            .with_for_update(key_share=True)
+        ).first()
+        if row is None:
+            raise NotFound(f"job {job_id!a} not found")
+        return row
 
     @staticmethod
     def _require_job(s: Session, job_id: str) -> None:

@@ -78,6 +78,8 @@ log = logging.getLogger(__name__)
 
 #: Stopping rules that end a job `stopped` rather than `converged`.
 STOPPED_RULES = frozenset({"max_evaluations"})
+#: How old a job's cancel flag may be when its driver checks it between two results, s.
+CANCEL_POLL_S = 0.5
 
 
 def make_owner() -> str:
@@ -111,6 +113,46 @@ class _Lease:
             self._t.join(timeout=5)
 
 
+class CancelFlags:
+    """The cancel flags of the jobs driven in one process, read for all of them in one query
+    at most every `interval` s: a driver checks its job's flag while it waits for results, and
+    a process driving many jobs reads them once per tick, not once per job."""
+
+    def __init__(self, repo: Repository, interval: float = CANCEL_POLL_S) -> None:
+        self.repo, self.interval = repo, interval
+        self._lock = threading.Lock()
+        self._jobs: dict[str, int] = {}  # job id -> drivers of it here
+        self._flags: dict[str, bool] = {}
+        self._read_at = -float("inf")
+
+    def watch(self, job_id: str) -> None:
+        """Read the job's flag from now on (until `unwatch`)."""
+        with self._lock:
+            self._jobs[job_id] = self._jobs.get(job_id, 0) + 1
+
+    def unwatch(self, job_id: str) -> None:
+        with self._lock:
+            left = self._jobs.get(job_id, 0) - 1
+            if left > 0:
+                self._jobs[job_id] = left
+            else:
+                self._jobs.pop(job_id, None)
+                self._flags.pop(job_id, None)
+
+    def requested(self, job_id: str) -> bool:
+        """Whether a cancel of the job was asked for, as read at most `interval` s ago.
+        Raises NotFound for a job that does not exist."""
+        with self._lock:
+            now = time.monotonic()
+            if now - self._read_at >= self.interval or job_id not in self._flags:
+                self._flags = self.repo.cancel_flags({*self._jobs, job_id})
+                self._read_at = now
+            flag = self._flags.get(job_id)
+        if flag is None:
+            raise NotFound(f"job {job_id!a} not found")
+        return flag
+
+
 class StoreEvaluator:
     """`optim.loop.CandidateEvaluator` of a job: the candidates become pending evaluations in
     the store (idempotent), the generation executor resolves them, and the stored rows become
@@ -126,22 +168,31 @@ class StoreEvaluator:
         d = self.driver
         d.check(force=True)
         full = [list(map(float, p)) for p in candidates]
-        d.repo.put_pending_evaluations(d.job_id, generation, full)
+        if d.repo.put_pending_evaluations(d.job_id, generation, full) < len(full):
+            self._check_stored(generation, full)  # rows of an earlier driver: the same?
         cut = None if generation == FINAL_GENERATION else self.cut_margin
         rows = d.executor.evaluate(d.repo, d.job_id, generation, len(full), d.check,
                                    cut_margin=cut)
         if len(rows) != len(full):
             raise JobFailedError(f"generation {generation}: {len(rows)} evaluations stored for "
                                  f"{len(full)} candidates")
-        for r, p in zip(rows, full, strict=True):
+        for r in rows:
             if r.status == EVAL_FAILED:
                 raise JobFailedError(
                     r.error or f"candidate {r.index} of generation {generation} failed")
-            if r.params is not None and not np.allclose(r.params, p, rtol=0, atol=1e-12):
-                raise JobFailedError(
-                    f"generation {generation}: stored candidate {r.index} differs from the one "
-                    "asked again after a restart (optimizer state not reproducible)")
         return [_stored_outcome(r) for r in rows]
+
+    def _check_stored(self, generation: int, full: list[list[float]]) -> None:
+        """Fail the job if a candidate stored before (by a driver that stopped) differs from
+        the one asked again now. Rows created just now hold `full` itself: not read back."""
+        d = self.driver
+        stored = {r.index: r.params for r in d.repo.evaluations(d.job_id, generation)}
+        for i, p in enumerate(full):
+            params = stored.get(i)
+            if params is not None and not np.allclose(params, p, rtol=0, atol=1e-12):
+                raise JobFailedError(
+                    f"generation {generation}: stored candidate {i} differs from the one "
+                    "asked again after a restart (optimizer state not reproducible)")
 
 
 def _stored_outcome(row: Any) -> EvalOutcome:
@@ -211,6 +262,7 @@ class JobDriver:
         owner: str | None = None,
         shutdown: threading.Event | None = None,
         on_generation: Callable[[int], None] | None = None,
+        cancels: CancelFlags | None = None,
     ) -> None:
         self.repo = repo
         self.job_id = job_id
@@ -221,7 +273,8 @@ class JobDriver:
         self.on_generation = on_generation
         self.space: SearchSpace
         self._lease: _Lease | None = None
-        self._last_cancel_check = 0.0
+        #: The process's drivers share their cancel-flag reads (`CancelFlags`).
+        self.cancels = cancels or CancelFlags(repo)
         #: (previous owner, its lease's expiry) when this driver took over a dead driver's job.
         self._took_over: tuple[str, Any] | None = None
 
@@ -229,16 +282,15 @@ class JobDriver:
     def check(self, force: bool = False) -> None:
         """Raise a DriverInterruptError if the driver must stop now: DriverShutdownError,
         LeaseLostError, JobCancelledError.
-        The cancel flag is read from the store at most every 0.5 s unless `force`."""
+        `force` (between generations): the job's cancel flag read now; otherwise as read for
+        every job of this process at most `CANCEL_POLL_S` ago (`CancelFlags`)."""
         if self.shutdown.is_set():
             raise DriverShutdownError
         if self._lease is not None and self._lease.lost.is_set():
             raise LeaseLostError
-        now = time.monotonic()
-        if force or now - self._last_cancel_check >= 0.5:
-            self._last_cancel_check = now
-            if self.repo.cancel_requested(self.job_id):
-                raise JobCancelledError
+        if (self.repo.cancel_requested(self.job_id) if force
+                else self.cancels.requested(self.job_id)):
+            raise JobCancelledError
 
     # -- main ----------------------------------------------------------------------------------
     def run(self) -> str | None:
@@ -255,6 +307,7 @@ class JobDriver:
             self._took_over = (before.driver_owner, before.lease_expires_at)
         self._lease = _Lease(self.repo, self.job_id, self.owner, ttl)
         self._lease.start()
+        self.cancels.watch(self.job_id)
         try:
             return self._run()
         except JobCancelledError:
@@ -273,6 +326,7 @@ class JobDriver:
             return self._finish_status(
                 FAILED, error=f"internal error: {type(err).__name__}: {err}")
         finally:
+            self.cancels.unwatch(self.job_id)
             self._lease.stop()
             with contextlib.suppress(Exception):
                 self.repo.release_driver_lease(self.job_id, self.owner)
@@ -364,8 +418,10 @@ class JobDriver:
 
 
 __all__ = [
+    "CANCEL_POLL_S",
     "FINAL_GENERATION",
     "STOPPED_RULES",
+    "CancelFlags",
     "JobDriver",
     "StoreEvaluator",
     "StoreRunState",

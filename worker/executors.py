@@ -131,7 +131,7 @@ class LocalPoolExecutor(GenerationExecutor):
         The cut needs every other candidate's value: the stored ones are passed along."""
         while True:
             check()
-            rows = repo.evaluations(job_id, generation)
+            rows = repo.evaluations(job_id, generation, params=False)
             pending = [r.index for r in rows if r.status == PENDING]
             if not pending:
                 return rows
@@ -274,31 +274,36 @@ class CeleryExecutor(GenerationExecutor):
         limit = self.config.eval_time_limit
         soft = max(1.0, limit - min(30.0, 0.1 * limit))
         while pending:
-            batch = pending[0]
-            n = len(batch)
             try:
-                args = [job_id, generation, batch]
-                res = self.app.send_task(
-                    TASK_EVALUATE_BATCH,
-                    args=args,
-                    # the message's printable copy of the arguments, made here in a few µs
-                    # instead of by Celery's generic saferepr
-                    argsrepr=repr(args),
-                    kwargsrepr="{}",
-                    queue=self.config.queue,
-                    retry=False,
-                    # the store has the result: no result-backend subscription per task here,
-                    # no result written by the worker
-                    ignore_result=True,
-                    time_limit=n * limit,
-                    soft_time_limit=(n - 1) * limit + soft,
-                )
-                pending.pop(0)
-                self.sent += n
-                self.tasks += 1
-                if res is not None and res.id:
-                    task_ids.update(dict.fromkeys(batch, res.id))
-                down_since, delay = None, 0.2
+                # one producer (and broker connection) out of Celery's pool for all the tasks
+                # of this call, not one acquired and released per task
+                with self.app.producer_or_acquire() as producer:
+                    while pending:
+                        batch = pending[0]
+                        n = len(batch)
+                        args = [job_id, generation, batch]
+                        res = self.app.send_task(
+                            TASK_EVALUATE_BATCH,
+                            args=args,
+                            # the message's printable copy of the arguments, made here in a
+                            # few µs instead of by Celery's generic saferepr
+                            argsrepr=repr(args),
+                            kwargsrepr="{}",
+                            queue=self.config.queue,
+                            retry=False,
+                            # the store has the result: no result-backend subscription per
+                            # task here, no result written by the worker
+                            ignore_result=True,
+                            time_limit=n * limit,
+                            soft_time_limit=(n - 1) * limit + soft,
+                            producer=producer,
+                        )
+                        pending.pop(0)
+                        self.sent += n
+                        self.tasks += 1
+                        if res is not None and res.id:
+                            task_ids.update(dict.fromkeys(batch, res.id))
+                        down_since, delay = None, 0.2
             except self._errors as err:
                 now = time.monotonic()
                 down_since = down_since or now
@@ -345,14 +350,17 @@ class CeleryExecutor(GenerationExecutor):
 
         Waiting (`ResultWait`): a notice names a resolved candidate (the worker sends it after
         the store has the result), so it frees its place in the window at once; the store is
-        read (one count query) when the notices say that every candidate is resolved, and at
-        least every `STORE_READ_S` s. A read that finds a result no notice announced (notices
-        lost, or not sent) turns the rest of the generation to reading the store after every
-        wait, each wait ending after `PollSchedule`'s delay or at the next notice. The driver's
+        read when the notices say that every candidate is resolved (the rows, which are the
+        answer when they agree), and at least every `STORE_READ_S` s (a count). A read that
+        finds a result no notice announced (notices lost, or not sent) turns the rest of the
+        generation to reading the store after every wait, each wait ending after
+        `PollSchedule`'s delay or at the next notice. The driver's
         interrupt check (cancel flag, lease, shutdown) runs at least every `FALLBACK_POLL_S` s.
         """
-        pending = _pending_indices(repo, job_id, generation)
-        send = GenerationDispatch(self, repo, job_id, generation, sorted(pending), check)
+        pending = repo.pending_indices(job_id, generation)  # the first read of the store
+        if not pending:
+            return repo.evaluations(job_id, generation, params=False)
+        send = GenerationDispatch(self, repo, job_id, generation, pending, check)
         wait = ResultWait(self._waiter, job_id, generation, population,
                           resolved=population - len(pending),
                           poll_interval=self.config.poll_interval)
@@ -361,13 +369,19 @@ class CeleryExecutor(GenerationExecutor):
             while True:
                 now = time.monotonic()
                 if wait.store_due(now):
-                    counts = repo.evaluation_counts(job_id, generation)
-                    if counts.resolved >= population:
-                        if counts.resolved > wait.resolved:
+                    # the rows (the driver has their params: not read back) once the notices
+                    # say all are resolved, else the counts
+                    rows = (None if send.outstanding
+                            else repo.evaluations(job_id, generation, params=False))
+                    resolved = (repo.evaluation_counts(job_id, generation).resolved
+                                if rows is None else sum(r.status != PENDING for r in rows))
+                    if resolved >= population:
+                        if resolved > wait.resolved:
                             self._progress()
-                        return repo.evaluations(job_id, generation)
+                        return (rows if rows is not None
+                                else repo.evaluations(job_id, generation, params=False))
                     unresolved: set[int] | None = None
-                    if wait.unannounced(counts.resolved):
+                    if wait.unannounced(resolved):
                         self._progress()
                         unresolved = send.forget_resolved()
                     send.resend_lost(now, self.last_progress, unresolved)
@@ -389,11 +403,6 @@ class CeleryExecutor(GenerationExecutor):
     def stats(self):
         return {"sent": self.sent, "tasks": self.tasks, "resent": self.resent,
                 "revoked": self.revoked}
-
-
-def _pending_indices(repo: Repository, job_id: str, generation: int) -> set[int]:
-    """The indices of the generation's evaluations still pending in the store."""
-    return {r.index for r in repo.evaluations(job_id, generation) if r.status == PENDING}
 
 
 class GenerationDispatch:
@@ -453,7 +462,7 @@ class GenerationDispatch:
 
     def unresolved(self) -> set[int]:
         """The generation's candidates the store still has pending."""
-        return _pending_indices(self.repo, self.job_id, self.generation)
+        return set(self.repo.pending_indices(self.job_id, self.generation))
 
     def forget_resolved(self) -> set[int]:
         """Keep only the candidates the store has unresolved, fill the window; returns them."""
@@ -519,7 +528,8 @@ class ResultWait:
         self.schedule = PollSchedule(time.monotonic(), poll_interval)
         #: Results known: in the store before this wait, announced, or counted in the store.
         self.resolved = self.initially = resolved
-        self.read_store, self.last_read = True, 0.0
+        # the caller has just read the store (the pending candidates): next read when due
+        self.read_store, self.last_read = False, time.monotonic()
         self.trusted = True  # until the store holds a result no notice announced
 
     def store_due(self, now: float) -> bool:

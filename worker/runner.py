@@ -17,7 +17,7 @@ from typing import Any
 
 from cmrt.settings import Settings
 from store import Repository
-from worker.driver import JobDriver, make_owner
+from worker.driver import CancelFlags, JobDriver, make_owner
 from worker.executors import GenerationExecutor
 from worker.family import FamilyDriver
 
@@ -44,6 +44,8 @@ class JobRunner:
         self._active: dict[str, threading.Thread] = {}
         self._scanner: threading.Thread | None = None
         self.finished: dict[str, str | None] = {}
+        #: One read of the cancel flags per tick for all the jobs driven here.
+        self.cancels = CancelFlags(repo)
         self.families = family_driver or FamilyDriver(repo, submit=self.submit)
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -80,7 +82,7 @@ class JobRunner:
     def _drive(self, job_id: str) -> None:
         try:
             driver = JobDriver(self.repo, job_id, self.executor, self.config, owner=self.owner,
-                               shutdown=self.shutdown)
+                               shutdown=self.shutdown, cancels=self.cancels)
             self.finished[job_id] = driver.run()
         except Exception:  # noqa: BLE001
             log.exception("job %s: driver thread crashed", job_id)

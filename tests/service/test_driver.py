@@ -10,8 +10,9 @@ from svc_helpers import bend_spec
 from optim.executors import EvalOutcome, SerialExecutor
 from optim.synthetic import Sphere
 from sim.spec import parse_spec
+from store import NotFound
 from store.records import CANCELLED, FAILED, STOPPED
-from worker.driver import FINAL_GENERATION, JobDriver
+from worker.driver import FINAL_GENERATION, CancelFlags, JobDriver
 from worker.executors import LocalPoolExecutor
 
 
@@ -243,3 +244,23 @@ def test_the_rank_cut_keeps_a_local_pool_job_identical(repo, config):
         d.pop("wall_seconds")
         d["history"] = [{k: v for k, v in h.items() if k != "worst"} for h in d["history"]]
     assert got == want
+
+
+def test_a_process_reads_its_jobs_cancel_flags_together(repo, monkeypatch):
+    a, b = _job(repo, seed=1), _job(repo, seed=2)
+    reads: list[list[str]] = []
+    read = repo.cancel_flags
+    monkeypatch.setattr(repo, "cancel_flags", lambda ids: reads.append(sorted(ids)) or read(ids))
+    flags = CancelFlags(repo, interval=60.0)
+    flags.watch(a.id)
+    flags.watch(b.id)
+    assert flags.requested(a.id) is False and flags.requested(b.id) is False
+    assert reads == [sorted([a.id, b.id])]  # one read for both jobs
+    repo.request_cancel(b.id)
+    assert flags.requested(b.id) is False  # as read, until the next tick
+    flags.interval = 0.0
+    assert flags.requested(b.id) is True and len(reads) == 2
+    flags.unwatch(a.id)
+    assert flags.requested(b.id) is True and reads[-1] == [b.id]
+    with pytest.raises(NotFound):
+        flags.requested("no-such-job")

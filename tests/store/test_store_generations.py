@@ -368,3 +368,20 @@ def test_release_attempt_gives_back_a_stopped_attempt_only(repo: SqlRepository) 
     assert get_evaluation(repo, job.id, 0, 1).attempts == 1
     with pytest.raises(NotFound):
         repo.release_attempt(job.id, 0, 9)
+
+
+def test_the_driver_s_reads_pending_indices_and_rows_without_params(repo: SqlRepository) -> None:
+    job = new_job(repo)
+    repo.put_pending_evaluations(job.id, 0, [[0.5, 1.5], [2.5, 3.5], [4.5, 5.5]])
+    repo.store_result(job.id, 0, 1, objective=2.0, fell=False, cpu_seconds=0.1)
+    assert repo.pending_indices(job.id, 0) == [0, 2]
+    assert repo.pending_indices(job.id, 1) == []
+    full = repo.evaluations(job.id, 0)
+    bare = repo.evaluations(job.id, 0, params=False)
+    assert [r.params for r in full] == [[0.5, 1.5], [2.5, 3.5], [4.5, 5.5]]
+    assert [r.params for r in bare] == [None, None, None]
+    # everything else is the same record
+    assert [r.__dict__ | {"params": None} for r in full] == [r.__dict__ for r in bare]
+    with pytest.raises(NotFound):
+        repo.evaluations("no-such-job", 0, params=False)
+    assert repo.evaluations(job.id, 7) == []

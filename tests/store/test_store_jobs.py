@@ -177,6 +177,11 @@ def test_request_cancel(repo: SqlRepository) -> None:
     with pytest.raises(NotFound):
         repo.cancel_requested("no-such-job")
     assert repo.set_job_status(running.id, "cancelled").status == "cancelled"
+    # the flags of several jobs in one read; an unknown job is left out
+    other = new_job(repo)
+    assert repo.cancel_flags([running.id, other.id, "no-such-job"]) == {
+        running.id: True, other.id: False}
+    assert repo.cancel_flags([]) == {}
 
     finished = new_job(repo)
     repo.set_job_status(finished.id, "running")

@@ -3,6 +3,8 @@ docs/service.md ("Architecture"), what the driver sends, and when it polls the s
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 
 from cmrt.settings import Settings
@@ -50,7 +52,10 @@ class _RecordingApp:
         self.sent: list[tuple[str, list, dict]] = []
 
     def send_task(self, name, args=None, **options):
-        self.sent.append((name, args, options))
+        self.sent.append((name, args, {k: v for k, v in options.items() if k != "producer"}))
+
+    def producer_or_acquire(self, producer=None):
+        return contextlib.nullcontext(producer)
 
 
 def test_driver_sends_ids_only_and_asks_for_no_result(config) -> None:
