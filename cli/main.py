@@ -288,12 +288,23 @@ def cmd_driver(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from service import command as serve_command
-    from worker import command as worker_command
-
+    """The `cmrt` command's parser; subcommands in the order `cmrt --help` lists them."""
     p = argparse.ArgumentParser(prog="cmrt", description="Anticipatory balance: CMRT service")
     sub = p.add_subparsers(dest="command", required=True)
+    _add_spec_commands(sub)  # simulate, optimize, bench, sweep
+    _add_result_commands(sub)  # pca, interpolate
+    _add_service_commands(sub)  # serve, driver, worker
 
+    from cli.family import add_parsers as add_family_parsers
+    from cli.remote import add_parsers
+
+    add_parsers(sub)  # submit, jobs, watch, library
+    add_family_parsers(sub)  # family run
+    return p
+
+
+def _add_spec_commands(sub: Any) -> None:
+    """The commands that run a task spec on this machine: simulate, optimize, bench, sweep."""
     s = sub.add_parser("simulate", help="simulate a task spec and print its objective")
     s.add_argument("spec")
     g = s.add_mutually_exclusive_group()
@@ -348,6 +359,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--json", action="store_true")
     w.set_defaults(func=cmd_sweep)
 
+
+def _add_result_commands(sub: Any) -> None:
+    """The commands that read optimisation results: pca, interpolate."""
     c = sub.add_parser("pca", help="build a PCA basis from a family of results")
     c.add_argument("results", nargs="+")
     c.add_argument("--k", type=int, default=3)
@@ -365,6 +379,12 @@ def build_parser() -> argparse.ArgumentParser:
                                  "OUT` and `--replay` take it as it is")
     i.add_argument("--json", action="store_true", help="print the sampled curve too")
     i.set_defaults(func=cmd_interpolate)
+
+
+def _add_service_commands(sub: Any) -> None:
+    """The service's processes: serve (the API), driver, worker."""
+    from service import command as serve_command
+    from worker import command as worker_command
 
     v = sub.add_parser("serve", help=serve_command.HELP, description=serve_command.DESCRIPTION)
     serve_command.add_arguments(v)
@@ -384,13 +404,6 @@ def build_parser() -> argparse.ArgumentParser:
                        description=worker_command.DESCRIPTION)
     worker_command.add_arguments(w)
     w.set_defaults(func=worker_command.run)
-
-    from cli.family import add_parsers as add_family_parsers
-    from cli.remote import add_parsers
-
-    add_parsers(sub)  # submit, jobs, watch, library
-    add_family_parsers(sub)  # family run
-    return p
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -133,22 +133,7 @@ def interpolate(
         raise InterpolationError(f"interpolation needs at least 2 results, got {len(results)}")
     if values is not None and len(values) != len(results):
         raise InterpolationError(f"{len(values)} parameter values for {len(results)} results")
-    fam = results[0].family
-    shape = (len(results[0].knot_times), results[0].vertical_values is not None)
-    best: dict[float, CmrtSample] = {}
-    for i, r in enumerate(results):
-        if r.family != fam:
-            raise InterpolationError(
-                f"results of different families: {results[0].name!r} is {fam!r}, "
-                f"{r.name!r} is {r.family!r}"
-            )
-        if (len(r.knot_times), r.vertical_values is not None) != shape:
-            raise InterpolationError(
-                f"result {r.name!r} has a different spline layout than {results[0].name!r}"
-            )
-        v = _param_of(r, key) if values is None else float(values[i])
-        if v not in best or r.objective < best[v].objective:
-            best[v] = r
+    best = _best_per_value(results, key, values)
     xs = sorted(best)
     if len(xs) < 2:
         raise InterpolationError(
@@ -166,12 +151,45 @@ def interpolate(
     if extrapolated and not extrapolate:
         raise InterpolationError(
             f"{key} = {value:g} is outside the sampled range [{xs[0]:g}, {xs[-1]:g}] of family "
-            f"{fam!r}; extrapolating past it must be asked for (extrapolate)"
+            f"{results[0].family!r}; extrapolating past it must be asked for (extrapolate)"
         )
     a, b = bracket(xs, value)
+    return _blend(best[a], best[b], a, b, key, value, extrapolated)
+
+
+def _best_per_value(
+    results: Sequence[CmrtSample], key: str, values: Sequence[float] | None
+) -> dict[float, CmrtSample]:
+    """Parameter value -> the result of lowest objective there; every result must share the
+    first one's family and spline layout."""
+    fam = results[0].family
+    shape = (len(results[0].knot_times), results[0].vertical_values is not None)
+    best: dict[float, CmrtSample] = {}
+    for i, r in enumerate(results):
+        if r.family != fam:
+            raise InterpolationError(
+                f"results of different families: {results[0].name!r} is {fam!r}, "
+                f"{r.name!r} is {r.family!r}"
+            )
+        if (len(r.knot_times), r.vertical_values is not None) != shape:
+            raise InterpolationError(
+                f"result {r.name!r} has a different spline layout than {results[0].name!r}"
+            )
+        v = _param_of(r, key) if values is None else float(values[i])
+        if v not in best or r.objective < best[v].objective:
+            best[v] = r
+    return best
+
+
+def _blend(
+    lower: CmrtSample, upper: CmrtSample, a: float, b: float, key: str, value: float,
+    extrapolated: bool,
+) -> InterpolatedCmrt:
+    """The decoded splines of `lower` (at `a`) and `upper` (at `b`) combined linearly at
+    `value`; InterpolationError if the result is not a valid spline."""
     w = (value - a) / (b - a)
-    La, kta, vxa, vya = _arrays(best[a])
-    Lb, ktb, vxb, vyb = _arrays(best[b])
+    La, kta, vxa, vya = _arrays(lower)
+    Lb, ktb, vxb, vyb = _arrays(upper)
     L = (1.0 - w) * La + w * Lb
     kt = (1.0 - w) * kta + w * ktb
     vx = (1.0 - w) * vxa + w * vxb
@@ -183,8 +201,8 @@ def interpolate(
         kt,
         vx,
         vy,
-        best[a].name,
-        best[b].name,
+        lower.name,
+        upper.name,
         a,
         b,
         float(w),

@@ -140,11 +140,6 @@ class SpecCache:
 SPECS = SpecCache()
 
 
-def clear_cache() -> None:
-    """Drop this process's cached specs and simulators."""
-    SPECS.clear()
-
-
 def _canonical(spec: TaskSpec | CanonicalSpec | Mapping[str, Any]) -> CanonicalSpec:
     if isinstance(spec, CanonicalSpec):
         return spec
@@ -234,4 +229,4 @@ def evaluate_params(
 
 
 __all__ = ["SIMULATOR_CACHE_SIZE", "SPECS", "SPEC_CACHE_SIZE", "SimObjective", "SpecCache",
-           "clear_cache", "evaluate_params"]
+           "evaluate_params"]

@@ -12,7 +12,7 @@ yet first (a small job sent after a huge one starts as soon as one running call 
 the huge job's whole batch). With one group this is first in, first out.
 
 Contracts:
-  * `submit` returns a `Task` whose `future` gets `fn(*args)`'s value or exception, or a
+  * `submit` returns a `SlotTask` whose `future` gets `fn(*args)`'s value or exception, or a
     `WorkerDiedError` (the slot's process died: crash, out of memory, killed; the slot restarts on
     next use) or a `TimeLimitError` (the call ran past its time limit: the slot's process is
     killed).
@@ -177,7 +177,7 @@ def kill_process_pool(pool: cf.ProcessPoolExecutor) -> None:
 # -- in the owner -----------------------------------------------------------------------------
 
 @dataclass(eq=False)
-class Task:
+class SlotTask:
     """One queued or running call; `future` resolves as the module docstring says."""
 
     group: Hashable
@@ -203,7 +203,7 @@ class _Slot:
     def __init__(self, number: int, pool: SlotPool) -> None:
         self.number, self._pool = number, pool
         self.executor: cf.ProcessPoolExecutor | None = None
-        self.task: Task | None = None
+        self.task: SlotTask | None = None
         self.shared = pool._ctx.RawArray("d", [-1.0, math.inf])  # [key, bound] of its task
 
     def start(self) -> cf.ProcessPoolExecutor:
@@ -214,7 +214,7 @@ class _Slot:
                 initargs=(os.getpid(), p._ignore_signals, self.shared))
         return self.executor
 
-    def post(self, task: Task) -> None:
+    def post(self, task: SlotTask) -> None:
         """Write `task`'s bound for its process (the bound before the key: `_bound_reader`)."""
         if task.bound is not None:
             self.shared[1] = task.bound
@@ -258,7 +258,7 @@ class SlotPool:
         self._ignore_signals = ignore_signals
         self.time_limit = time_limit
         self._slots = [_Slot(i, self) for i in range(int(workers))]
-        self._queues: OrderedDict[Hashable, deque[Task]] = OrderedDict()
+        self._queues: OrderedDict[Hashable, deque[SlotTask]] = OrderedDict()
         self._lock = threading.RLock()
         self._closed = False
         self._keys = itertools.count(1)
@@ -303,7 +303,7 @@ class SlotPool:
         if self._closed:
             raise EvaluationError("the process pool is closed")
 
-    def _next_task(self) -> Task | None:
+    def _next_task(self) -> SlotTask | None:
         for group in list(self._queues):
             q = self._queues[group]
             while q and q[0].future.done():  # cancelled by its caller while queued
@@ -340,7 +340,7 @@ class SlotPool:
                 fut.add_done_callback(lambda f, s=slot, t=task: self._finished(s, t, f))
             self._ensure_watchdog()
 
-    def _finished(self, slot: _Slot, task: Task, fut: cf.Future) -> None:
+    def _finished(self, slot: _Slot, task: SlotTask, fut: cf.Future) -> None:
         with self._lock:
             if slot.task is task:
                 slot.task = None
@@ -393,7 +393,7 @@ class SlotPool:
 
     # -- the callers' side ---------------------------------------------------------------------
     def submit(self, fn: Callable[..., Any], *args: Any, group: Hashable = None,
-               index: int = 0, time_limit: float | None | str = "default") -> Task:
+               index: int = 0, time_limit: float | None | str = "default") -> SlotTask:
         """Queue `fn(*args)` for `group` (see the module docstring); `time_limit` "default":
         the pool's."""
         return self.submit_many(group, [(fn, args)], index=index, time_limit=time_limit)[0]
@@ -401,7 +401,7 @@ class SlotPool:
     def submit_many(self, group: Hashable, calls: Iterable[tuple[Callable[..., Any],
                                                                  tuple[Any, ...]]],
                     *, index: int = 0, time_limit: float | None | str = "default",
-                    keys: Sequence[float] | None = None) -> list[Task]:
+                    keys: Sequence[float] | None = None) -> list[SlotTask]:
         """Queue several calls of `group` at once, indexed from `index`; `keys`: the tasks'
         cut keys (`new_keys`), else fresh ones."""
         limit = self.time_limit if time_limit == "default" else time_limit
@@ -410,7 +410,7 @@ class SlotPool:
             keys = self.new_keys(len(calls))
         with self._lock:
             self._check_open()
-            tasks = [Task(group, index + i, fn, tuple(args), limit, key)  # type: ignore[arg-type]
+            tasks = [SlotTask(group, index + i, fn, tuple(args), limit, key)  # type: ignore[arg-type]
                      for i, ((fn, args), key) in enumerate(zip(calls, keys, strict=True))]
             if group not in self._queues:  # a group not served yet goes first
                 self._queues[group] = deque()
@@ -424,7 +424,7 @@ class SlotPool:
         with self._lock:
             return [float(next(self._keys)) for _ in range(n)]
 
-    def set_bound(self, task: Task, bound: float) -> None:
+    def set_bound(self, task: SlotTask, bound: float) -> None:
         """Let `task` (submitted through `evaluate_one_cuttable`) stop once its objective's
         lower bound exceeds `bound`: posted to its slot now if it runs, else when it starts."""
         with self._lock:
@@ -433,7 +433,7 @@ class SlotPool:
                 if slot.task is task:
                     slot.post(task)
 
-    def drop(self, tasks: Sequence[Task]) -> int:
+    def drop(self, tasks: Sequence[SlotTask]) -> int:
         """Remove the queued `tasks` and kill the slots running any of them (restarted at
         once); returns how many were running. Their futures get `DroppedError`."""
         killed = 0
@@ -527,7 +527,7 @@ __all__ = [
     "POLL_S",
     "DroppedError",
     "SlotPool",
-    "Task",
+    "SlotTask",
     "TimeLimitError",
     "WorkerDiedError",
     "evaluate_one",

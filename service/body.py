@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 from fastapi import Request
 from pydantic import BaseModel, ValidationError
 
-from service.errors import ApiError, validation_message
+from service.errors import HttpError, validation_message
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -68,19 +68,19 @@ def non_finite_path(value: Any, path: str = "") -> str | None:
 def parse_json(body: bytes, max_depth: int = MAX_JSON_DEPTH) -> Any:
     """Parse a request body (see the module docstring for what is refused)."""
     if not body.strip():
-        raise ApiError(400, "body: malformed JSON: the request body is empty")
+        raise HttpError(400, "body: malformed JSON: the request body is empty")
     if json_depth(body, max_depth) > max_depth:
-        raise ApiError(400, f"body: JSON nested deeper than {max_depth} levels "
+        raise HttpError(400, f"body: JSON nested deeper than {max_depth} levels "
                             "(arrays/objects) is refused")
     try:
         data = json.loads(body, parse_constant=_reject_constant)
     except (ValueError, UnicodeDecodeError) as err:
-        raise ApiError(400, f"body: malformed JSON: {err}") from None
+        raise HttpError(400, f"body: malformed JSON: {err}") from None
     except RecursionError:  # pragma: no cover - the depth scan refuses such bodies first
-        raise ApiError(400, f"body: JSON nested deeper than {max_depth} levels") from None
+        raise HttpError(400, f"body: JSON nested deeper than {max_depth} levels") from None
     bad = non_finite_path(data)
     if bad is not None:
-        raise ApiError(422, f"{bad}: must be a finite number (the value overflows a double)")
+        raise HttpError(422, f"{bad}: must be a finite number (the value overflows a double)")
     return data
 
 
@@ -91,7 +91,7 @@ def require_json_content_type(request: Request) -> None:
     media = (raw or "").split(";", 1)[0].strip().lower()
     if media != "application/json":
         got = f"{raw!r}" if raw else "none"
-        raise ApiError(415, f"content-type: must be application/json, got {got}")
+        raise HttpError(415, f"content-type: must be application/json, got {got}")
 
 
 async def read_json(request: Request, limit: int, max_depth: int = MAX_JSON_DEPTH) -> Any:
@@ -100,12 +100,12 @@ async def read_json(request: Request, limit: int, max_depth: int = MAX_JSON_DEPT
     require_json_content_type(request)
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise ApiError(413, f"body: {declared} bytes exceed the limit of {limit} bytes")
+        raise HttpError(413, f"body: {declared} bytes exceed the limit of {limit} bytes")
     body = bytearray()
     async for chunk in request.stream():
         body += chunk
         if len(body) > limit:
-            raise ApiError(413, f"body: exceeds the limit of {limit} bytes")
+            raise HttpError(413, f"body: exceeds the limit of {limit} bytes")
     return parse_json(bytes(body), max_depth)
 
 
@@ -116,4 +116,4 @@ async def read_model(request: Request, model: type[M], limit: int) -> M:
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        raise ApiError(422, validation_message(err.errors())) from None
+        raise HttpError(422, validation_message(err.errors())) from None

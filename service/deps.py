@@ -15,7 +15,7 @@ from typing import Annotated, Any
 from fastapi import Depends, Request
 
 from cmrt.settings import Settings
-from service.errors import ApiError
+from service.errors import HttpError
 from service.simulations import SimulationPool
 from store import Repository
 from worker.executors import GenerationExecutor
@@ -81,10 +81,10 @@ async def no_nul(request: Request) -> None:
     """Refuse a NUL character in the path or the query (PostgreSQL cannot store or compare it;
     no id, family or parameter name contains one)."""
     if "\x00" in request.url.path:
-        raise ApiError(422, "path: the NUL character is not allowed")
+        raise HttpError(422, "path: the NUL character is not allowed")
     for k, v in request.query_params.multi_items():
         if "\x00" in k or "\x00" in v:
-            raise ApiError(422, f"{k.replace(chr(0), '')}: the NUL character is not allowed")
+            raise HttpError(422, f"{k.replace(chr(0), '')}: the NUL character is not allowed")
 
 
 #: Query keys of /cmrts and /cmrts/interpolate that are not task parameters.
@@ -100,9 +100,9 @@ def finite_query(name: str, raw: str) -> float:
     try:
         v = float(raw)
     except ValueError:
-        raise ApiError(422, f"{name}: {raw!r} is not a number") from None
+        raise HttpError(422, f"{name}: {raw!r} is not a number") from None
     if not math.isfinite(v):
-        raise ApiError(422, f"{name}: must be a finite number, got {raw!r}")
+        raise HttpError(422, f"{name}: must be a finite number, got {raw!r}")
     return v
 
 
@@ -113,13 +113,13 @@ async def library_query(request: Request) -> dict[str, float]:
         if k in RESERVED_QUERY_KEYS:
             continue
         if len(k) > MAX_PARAM_NAME:
-            raise ApiError(422, f"parameter name {k[:MAX_PARAM_NAME]!r}...: longer than "
+            raise HttpError(422, f"parameter name {k[:MAX_PARAM_NAME]!r}...: longer than "
                                 f"{MAX_PARAM_NAME} characters")
         if k in params:
-            raise ApiError(422, f"{k}: given more than once")
+            raise HttpError(422, f"{k}: given more than once")
         params[k] = finite_query(k, v)
     if len(params) > MAX_QUERY_PARAMS:
-        raise ApiError(422, f"at most {MAX_QUERY_PARAMS} task parameters per query")
+        raise HttpError(422, f"at most {MAX_QUERY_PARAMS} task parameters per query")
     return params
 
 

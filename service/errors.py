@@ -43,7 +43,7 @@ def database_unreachable(err: BaseException) -> bool:
     return isinstance(err, DBAPIError) and bool(err.connection_invalidated)
 
 
-class ApiError(Exception):
+class HttpError(Exception):
     """An HTTP error with the message the client gets as `detail`."""
 
     def __init__(self, status: int, detail: str, headers: dict[str, str] | None = None) -> None:
@@ -63,8 +63,8 @@ def validation_message(errors: Iterable[Mapping[str, Any]], drop: tuple[str, ...
 
 
 def install_error_handlers(app: FastAPI) -> None:
-    @app.exception_handler(ApiError)
-    async def _api_error(_: Request, err: ApiError) -> JSONResponse:
+    @app.exception_handler(HttpError)
+    async def _http_error(_: Request, err: HttpError) -> JSONResponse:
         return JSONResponse({"detail": err.detail}, status_code=err.status, headers=err.headers)
 
     @app.exception_handler(NotFound)

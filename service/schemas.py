@@ -383,7 +383,7 @@ class FamilyLinks(BaseModel):
     dashboard: str
 
 
-class FamilyRun(BaseModel):
+class FamilyRunOut(BaseModel):
     """One run of a family's plan and the job that runs it (null until it is started)."""
 
     id: str
@@ -428,7 +428,7 @@ class FamilyOut(BaseModel):
     strategy: str | None
     links: FamilyLinks
     spec: dict[str, Any] | None = Field(None, description="the family request as stored")
-    runs: list[FamilyRun] | None = None
+    runs: list[FamilyRunOut] | None = None
     progress: FamilyProgress | None = None
     members: list[dict[str, Any]] | None = None
     basis: dict[str, Any] | None = None
@@ -457,7 +457,7 @@ class Health(BaseModel):
 
 
 # ---- what-if simulations ------------------------------------------------------------------
-class LibraryCmrt(BaseModel):
+class LibraryCmrtRef(BaseModel):
     """A CMRT of the library, by id."""
 
     model_config = ConfigDict(extra="forbid")
@@ -482,7 +482,7 @@ class InlineCmrt(BaseModel):
                       Field(min_length=1, max_length=MAX_CMRT_PARAMS)]
 
 
-CmrtChoice = Annotated[LibraryCmrt | JobBestCmrt | InlineCmrt, Field(discriminator="source")]
+CmrtChoice = Annotated[LibraryCmrtRef | JobBestCmrt | InlineCmrt, Field(discriminator="source")]
 
 
 class SimulationRequest(BaseModel):

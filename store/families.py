@@ -17,7 +17,7 @@ from sqlalchemy.exc import IntegrityError
 
 from cmrt.canonical import document_hash
 from store.errors import NotFound
-from store.models import Family, FamilyRun, Job
+from store.models import FamilyRow, FamilyRunRow, JobRow
 from store.records import (
     FAMILY_RUNNING,
     FAMILY_TERMINAL,
@@ -88,7 +88,7 @@ class FamilyRepository(abc.ABC):
         `cancelled`); a terminal family is left alone. Raises NotFound."""
 
 
-def _family_record(f: Family, runs: dict[str, str]) -> FamilyRecord:
+def _family_record(f: FamilyRow, runs: dict[str, str]) -> FamilyRecord:
     return FamilyRecord(
         id=f.id, family=f.family, param=f.param, spec=f.spec, spec_hash=f.spec_hash,
         status=f.status, error=f.error,
@@ -102,15 +102,15 @@ class SqlFamilies(SqlBase, FamilyRepository):
         out: dict[str, dict[str, str]] = {fid: {} for fid in family_ids}
         if family_ids:
             for fid, rid, jid in s.execute(
-                select(FamilyRun.family_id, FamilyRun.run_id, FamilyRun.job_id)
-                .where(FamilyRun.family_id.in_(list(family_ids)))
+                select(FamilyRunRow.family_id, FamilyRunRow.run_id, FamilyRunRow.job_id)
+                .where(FamilyRunRow.family_id.in_(list(family_ids)))
             ):
                 out[fid][rid] = jid
         return out
 
     def create_family(self, spec, *, family, param, spec_hash=None):
         doc = _json(dict(spec), "spec")
-        row = Family(id=str(uuid.uuid4()), family=family, param=param, spec=doc,
+        row = FamilyRow(id=str(uuid.uuid4()), family=family, param=param, spec=doc,
                      spec_hash=spec_hash or document_hash(doc), status=FAMILY_RUNNING, error=None,
                      cancel_requested=False, created_at=self._clock())
         with self._write() as s:
@@ -120,25 +120,25 @@ class SqlFamilies(SqlBase, FamilyRepository):
 
     def get_family(self, family_id):
         with self._read() as s:
-            row = s.get(Family, family_id)
+            row = s.get(FamilyRow, family_id)
             if row is None:
                 raise NotFound(f"family {family_id!a} not found")
             return _family_record(row, self._runs(s, [family_id])[family_id])
 
     def list_families(self, *, status=None, limit=50, offset=0):
-        conds = [] if status is None else [Family.status == status]
+        conds = [] if status is None else [FamilyRow.status == status]
         with self._read() as s:
-            total = s.scalar(select(func.count()).select_from(Family).where(*conds)) or 0
-            rows = s.scalars(select(Family).where(*conds)
-                             .order_by(Family.created_at.desc(), Family.id)
+            total = s.scalar(select(func.count()).select_from(FamilyRow).where(*conds)) or 0
+            rows = s.scalars(select(FamilyRow).where(*conds)
+                             .order_by(FamilyRow.created_at.desc(), FamilyRow.id)
                              .limit(limit).offset(offset)).all()
             runs = self._runs(s, [r.id for r in rows])
             return [_family_record(r, runs[r.id]) for r in rows], int(total)
 
     def active_families(self, limit=100):
         with self._read() as s:
-            rows = s.scalars(select(Family).where(Family.status.not_in(FAMILY_TERMINAL))
-                             .order_by(Family.created_at, Family.id).limit(limit)).all()
+            rows = s.scalars(select(FamilyRow).where(FamilyRow.status.not_in(FAMILY_TERMINAL))
+                             .order_by(FamilyRow.created_at, FamilyRow.id).limit(limit)).all()
             runs = self._runs(s, [r.id for r in rows])
             return [_family_record(r, runs[r.id]) for r in rows]
 
@@ -150,10 +150,10 @@ class SqlFamilies(SqlBase, FamilyRepository):
         spec = args.pop("spec")
         try:
             with self._write() as s:
-                if s.get(Family, family_id) is None:
+                if s.get(FamilyRow, family_id) is None:
                     raise NotFound(f"family {family_id!a} not found")
                 rec = self._create_job_in(s, spec, **args)
-                s.add(FamilyRun(family_id=family_id, run_id=run_id, job_id=rec.id))
+                s.add(FamilyRunRow(family_id=family_id, run_id=run_id, job_id=rec.id))
                 s.flush()
                 return rec
         except IntegrityError:  # another driver created it first: that one is the run's job
@@ -164,38 +164,41 @@ class SqlFamilies(SqlBase, FamilyRepository):
 
     def _run_job(self, family_id: str, run_id: str) -> JobRecord | None:
         with self._read() as s:
-            job = s.scalars(select(Job).join(FamilyRun, FamilyRun.job_id == Job.id).where(
-                FamilyRun.family_id == family_id, FamilyRun.run_id == run_id)).one_or_none()
+            job = s.scalars(
+                select(JobRow).join(FamilyRunRow, FamilyRunRow.job_id == JobRow.id).where(
+                    FamilyRunRow.family_id == family_id, FamilyRunRow.run_id == run_id)
+            ).one_or_none()
             return None if job is None else _job_record(job)
 
     def family_jobs(self, family_id):
         with self._read() as s:
-            if s.get(Family, family_id) is None:
+            if s.get(FamilyRow, family_id) is None:
                 raise NotFound(f"family {family_id!a} not found")
-            rows = s.execute(select(FamilyRun.run_id, Job).join(Job, FamilyRun.job_id == Job.id)
-                             .where(FamilyRun.family_id == family_id)).all()
+            rows = s.execute(select(FamilyRunRow.run_id, JobRow)
+                             .join(JobRow, FamilyRunRow.job_id == JobRow.id)
+                             .where(FamilyRunRow.family_id == family_id)).all()
             return {rid: _job_record(job) for rid, job in rows}
 
     def family_results(self, family_id, run_ids):
         if not run_ids:
             return {}
         with self._read() as s:
-            rows = s.execute(select(FamilyRun.run_id, Job.result)
-                             .join(Job, FamilyRun.job_id == Job.id)
-                             .where(FamilyRun.family_id == family_id,
-                                    FamilyRun.run_id.in_(list(run_ids)))).all()
+            rows = s.execute(select(FamilyRunRow.run_id, JobRow.result)
+                             .join(JobRow, FamilyRunRow.job_id == JobRow.id)
+                             .where(FamilyRunRow.family_id == family_id,
+                                    FamilyRunRow.run_id.in_(list(run_ids)))).all()
             return {rid: res for rid, res in rows if res is not None}
 
     def set_family_probes(self, family_id, probes):
         doc = _json(probes, "probes")
         with self._write() as s:
-            if s.execute(update(Family).where(Family.id == family_id).values(probes=doc)
+            if s.execute(update(FamilyRow).where(FamilyRow.id == family_id).values(probes=doc)
                          .execution_options(synchronize_session=False)).rowcount == 0:
                 raise NotFound(f"family {family_id!a} not found")
 
     def family_probes(self, family_id):
         with self._read() as s:
-            return s.scalar(select(Family.probes).where(Family.id == family_id))
+            return s.scalar(select(FamilyRow.probes).where(FamilyRow.id == family_id))
 
     def finish_family(self, family_id, status, *, report=None, error=None):
         if status not in FAMILY_TERMINAL:
@@ -206,14 +209,14 @@ class SqlFamilies(SqlBase, FamilyRepository):
         if error is not None:
             values["error"] = error
         with self._write() as s:
-            s.execute(update(Family).where(Family.id == family_id,
-                                           Family.status.not_in(FAMILY_TERMINAL))
+            s.execute(update(FamilyRow).where(FamilyRow.id == family_id,
+                                           FamilyRow.status.not_in(FAMILY_TERMINAL))
                       .values(**values).execution_options(synchronize_session=False))
         return self.get_family(family_id)
 
     def family_report(self, family_id):
         with self._read() as s:
-            row = s.execute(select(Family.id, Family.report).where(Family.id == family_id)
+            row = s.execute(select(FamilyRow.id, FamilyRow.report).where(FamilyRow.id == family_id)
                             ).one_or_none()
             if row is None:
                 raise NotFound(f"family {family_id!a} not found")
@@ -221,8 +224,8 @@ class SqlFamilies(SqlBase, FamilyRepository):
 
     def request_family_cancel(self, family_id):
         with self._write() as s:
-            s.execute(update(Family).where(Family.id == family_id,
-                                           Family.status.not_in(FAMILY_TERMINAL))
+            s.execute(update(FamilyRow).where(FamilyRow.id == family_id,
+                                           FamilyRow.status.not_in(FAMILY_TERMINAL))
                       .values(cancel_requested=True)
                       .execution_options(synchronize_session=False))
         return self.get_family(family_id)

@@ -13,7 +13,7 @@ from sqlalchemy import func, or_, select, update
 from cmrt.canonical import document_hash
 from store.db import READ_ONLY_OPTION
 from store.errors import Conflict, InvalidTransition, NotFound
-from store.models import Basis, Job
+from store.models import BasisRow, JobRow
 from store.records import (
     CANCELLED,
     JOB_STATUSES,
@@ -30,7 +30,7 @@ from store.sql import (
 )
 
 #: `ping`'s statement: one id of the jobs table, if any (its primary key index alone).
-_PING = select(Job.id).limit(1)
+_PING = select(JobRow.id).limit(1)
 
 
 class JobRepository(abc.ABC):
@@ -157,10 +157,10 @@ class SqlJobs(SqlBase, JobRepository):
         """create_job inside the session `s` (a caller's transaction)."""
         if workers < 1:
             raise ValueError("workers must be >= 1")
-        if basis_id is not None and s.get(Basis, basis_id) is None:
+        if basis_id is not None and s.get(BasisRow, basis_id) is None:
             raise Conflict(f"basis {basis_id} not found")
         doc = _json(dict(spec), "spec")
-        job = Job(
+        job = JobRow(
             id=str(uuid.uuid4()), name=name, family=family, task=task, spec=doc,
             spec_hash=spec_hash or document_hash(doc), seed=seed, workers=int(workers),
             status=QUEUED,
@@ -174,21 +174,22 @@ class SqlJobs(SqlBase, JobRepository):
     def set_job_result(self, job_id, result):
         doc = _json(dict(result), "result")
         with self._write() as s:
-            res = s.execute(update(Job).where(Job.id == job_id).values(result=doc)
+            res = s.execute(update(JobRow).where(JobRow.id == job_id).values(result=doc)
                             .execution_options(synchronize_session=False))
             if res.rowcount == 0:
                 raise NotFound(f"job {job_id!a} not found")
 
     def job_result(self, job_id):
         with self._read() as s:
-            row = s.execute(select(Job.id, Job.result).where(Job.id == job_id)).one_or_none()
+            row = s.execute(select(JobRow.id, JobRow.result)
+                            .where(JobRow.id == job_id)).one_or_none()
             if row is None:
                 raise NotFound(f"job {job_id!a} not found")
             return row[1]
 
     def get_job(self, job_id):
         with self._read() as s:
-            job = s.get(Job, job_id)
+            job = s.get(JobRow, job_id)
             if job is None:
                 raise NotFound(f"job {job_id!a} not found")
             return _job_record(job)
@@ -200,7 +201,7 @@ class SqlJobs(SqlBase, JobRepository):
 
     def cancel_requested(self, job_id):
         with self._read() as s:
-            flag = s.execute(select(Job.cancel_requested).where(Job.id == job_id)).scalar()
+            flag = s.execute(select(JobRow.cancel_requested).where(JobRow.id == job_id)).scalar()
             if flag is None:
                 raise NotFound(f"job {job_id!a} not found")
             return bool(flag)
@@ -209,15 +210,15 @@ class SqlJobs(SqlBase, JobRepository):
         conds = []
         if status is not None:
             statuses = [status] if isinstance(status, str) else list(status)
-            conds.append(Job.status.in_(statuses))
+            conds.append(JobRow.status.in_(statuses))
         if family is not None:
-            conds.append(Job.family == family)
+            conds.append(JobRow.family == family)
         with self._read() as s:
-            total = s.scalar(select(func.count()).select_from(Job).where(*conds)) or 0
+            total = s.scalar(select(func.count()).select_from(JobRow).where(*conds)) or 0
             rows = s.scalars(
-                select(Job)
+                select(JobRow)
                 .where(*conds)
-                .order_by(Job.created_at.desc(), Job.id)
+                .order_by(JobRow.created_at.desc(), JobRow.id)
                 .limit(limit)
                 .offset(offset)
             ).all()
@@ -239,18 +240,18 @@ class SqlJobs(SqlBase, JobRepository):
             values.update(finished_at=now, driver_owner=None, lease_expires_at=None)
         with self._write() as s:
             res = s.execute(
-                update(Job)
-                .where(Job.id == job_id, Job.status.in_(sources))
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.status.in_(sources))
                 .values(**values)
                 .execution_options(synchronize_session=False)
             )
             if res.rowcount == 0:
-                current = s.scalar(select(Job.status).where(Job.id == job_id))
+                current = s.scalar(select(JobRow.status).where(JobRow.id == job_id))
                 if current is None:
                     raise NotFound(f"job {job_id!a} not found")
                 if current != status:
                     raise InvalidTransition(job_id, current, status)
-            return _job_record(s.get(Job, job_id, populate_existing=True))
+            return _job_record(s.get(JobRow, job_id, populate_existing=True))
 
     def request_cancel(self, job_id):
         now = self._clock()
@@ -272,15 +273,15 @@ class SqlJobs(SqlBase, JobRepository):
         now = self._clock()
         with self._write() as s:
             res = s.execute(
-                update(Job)
+                update(JobRow)
                 .where(
-                    Job.id == job_id,
-                    Job.status.in_([QUEUED, RUNNING]),
+                    JobRow.id == job_id,
+                    JobRow.status.in_([QUEUED, RUNNING]),
                     or_(
-                        Job.driver_owner.is_(None),
-                        Job.driver_owner == owner,
-                        Job.lease_expires_at.is_(None),
-                        Job.lease_expires_at < now,
+                        JobRow.driver_owner.is_(None),
+                        JobRow.driver_owner == owner,
+                        JobRow.lease_expires_at.is_(None),
+                        JobRow.lease_expires_at < now,
                     ),
                 )
                 .values(
@@ -299,8 +300,8 @@ class SqlJobs(SqlBase, JobRepository):
         now = self._clock()
         with self._write() as s:
             res = s.execute(
-                update(Job)
-                .where(Job.id == job_id, Job.driver_owner == owner)
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.driver_owner == owner)
                 .values(lease_expires_at=now + timedelta(seconds=ttl_s), heartbeat_at=now)
                 .execution_options(synchronize_session=False)
             )
@@ -309,8 +310,8 @@ class SqlJobs(SqlBase, JobRepository):
     def release_driver_lease(self, job_id, owner):
         with self._write() as s:
             s.execute(
-                update(Job)
-                .where(Job.id == job_id, Job.driver_owner == owner)
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.driver_owner == owner)
                 .values(driver_owner=None, lease_expires_at=None)
                 .execution_options(synchronize_session=False)
             )
@@ -319,16 +320,16 @@ class SqlJobs(SqlBase, JobRepository):
         now = self._clock()
         with self._read() as s:
             rows = s.scalars(
-                select(Job)
+                select(JobRow)
                 .where(
-                    Job.status.in_([QUEUED, RUNNING]),
+                    JobRow.status.in_([QUEUED, RUNNING]),
                     or_(
-                        Job.driver_owner.is_(None),
-                        Job.lease_expires_at.is_(None),
-                        Job.lease_expires_at < now,
+                        JobRow.driver_owner.is_(None),
+                        JobRow.lease_expires_at.is_(None),
+                        JobRow.lease_expires_at < now,
                     ),
                 )
-                .order_by(Job.created_at, Job.id)
+                .order_by(JobRow.created_at, JobRow.id)
                 .limit(limit)
             ).all()
             return [_job_record(j) for j in rows]

@@ -1,18 +1,27 @@
-"""The CMRT library and PCA bases: `LibraryRepository` (the contract) and `SqlLibrary`."""
+"""The CMRT library and PCA bases: `LibraryRepository` (the contract) and `SqlLibrary`.
+
+The library is append-only: a CMRT is added, never updated or deleted (no route, command or
+store call does either). So `SqlLibrary` keeps what it has read (the library's hot path, a
+query answered from one family's keys and two members, is then one indexed count instead of
+decoding every member's JSON at every request): records by id for good, and each family's
+keys checked at every read against the store's count and newest time of that family, so a
+CMRT another process added is seen at the next read."""
 
 from __future__ import annotations
 
 import abc
 import math
+import threading
 import uuid
-from collections.abc import Mapping, Sequence
+from collections import OrderedDict
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from sqlalchemy import Text, and_, cast, func, select
+from sqlalchemy import Text, and_, bindparam, cast, func, select
 from sqlalchemy.exc import IntegrityError
 
 from store.errors import Conflict, NotFound
-from store.models import Basis, Cmrt, CmrtParameter, CmrtVerification, Job
+from store.models import BasisRow, CmrtParameterRow, CmrtRow, CmrtVerificationRow, JobRow
 from store.records import (
     CMRT_ENTRY_FIELDS,
     WINNERS,
@@ -23,6 +32,7 @@ from store.records import (
     VerificationRecord,
 )
 from store.sql import (
+    _CMRT_RECORD_FIELDS,
     SqlBase,
     _basis_record,
     _cmrt_record,
@@ -71,6 +81,19 @@ class LibraryRepository(abc.ABC):
         objective first). Only CMRTs having all named parameters match. `character` keeps
         entries whose character has the given items (e.g. {"height": 1.75}).
         """
+
+    @abc.abstractmethod
+    def find_cmrt_keys(
+        self,
+        family: str,
+        params: Mapping[str, float],
+        *,
+        tolerance: float | Mapping[str, float] | None = None,
+        character: Mapping[str, Any] | None = None,
+        limit: int | None = None,
+    ) -> list[CmrtKey]:
+        """`find_cmrts`'s CMRTs, in its order, as keys: their summary without curve, spline
+        or spec (a list of matches reads no CMRT's JSON beyond its family's keys)."""
 
     @abc.abstractmethod
     def list_cmrts(
@@ -130,7 +153,97 @@ class LibraryRepository(abc.ABC):
         """The basis; raises NotFound."""
 
 
+# JSON columns keep a Python None as the JSON text `null`, not SQL NULL.
+_HAS_SPEC = and_(CmrtRow.spec.is_not(None), cast(CmrtRow.spec, Text) != "null")
+#: A family's keys (`cmrt_keys`), newest first, and what tells whether kept keys are current:
+#: the family's count and newest time (rows are only ever added). Built once: building a
+#: statement costs more than running it on a warm database.
+_FAMILY_KEYS = (
+    select(CmrtRow.id, CmrtRow.task_parameters, CmrtRow.objective, CmrtRow.knots,
+           CmrtRow.values, _HAS_SPEC, CmrtRow.created_at, CmrtRow.preparation, CmrtRow.decay,
+           CmrtRow.character, CmrtRow.family, CmrtRow.objective_without, CmrtRow.winner,
+           CmrtRow.fell, CmrtRow.job_id)
+    .where(CmrtRow.family == bindparam("family")).order_by(CmrtRow.created_at.desc(), CmrtRow.id))
+_FAMILY_STAMP = select(func.count(), func.max(CmrtRow.created_at)).where(
+    CmrtRow.family == bindparam("family"))
+
+#: Library records by id, as Core rows in `CmrtRecord`'s field order (no ORM objects made).
+_RECORDS = select(*(CmrtRow.__table__.c[name] for name in _CMRT_RECORD_FIELDS)).where(
+    CmrtRow.id.in_(bindparam("ids", expanding=True)))
+
+#: Library records kept in memory per repository (about 10 kB each with curve and spec): the
+#: members a busy library's queries read over and over, 40 MB at the most.
+RECORDS_KEPT = 4096
+#: Families whose keys are kept (about 60 kB for 50 members).
+FAMILIES_KEPT = 512
+
+
+class _Kept:
+    """What `SqlLibrary` has read: records by id and families' keys with their stamp, both
+    least recently used first (thread-safe: the service reads on several threads)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.records: OrderedDict[str, CmrtRecord] = OrderedDict()
+        self.keys: OrderedDict[str, tuple[tuple[Any, ...], list[CmrtKey]]] = OrderedDict()
+
+    def record(self, cmrt_id: str) -> CmrtRecord | None:
+        with self.lock:
+            rec = self.records.get(cmrt_id)
+            if rec is not None:
+                self.records.move_to_end(cmrt_id)
+            return rec
+
+    def keep_records(self, recs: Iterable[CmrtRecord]) -> None:
+        with self.lock:
+            for r in recs:
+                self.records[r.id] = r
+                self.records.move_to_end(r.id)
+            while len(self.records) > RECORDS_KEPT:
+                self.records.popitem(last=False)
+
+    def family_keys(self, family: str, stamp: tuple[Any, ...]) -> list[CmrtKey] | None:
+        with self.lock:
+            got = self.keys.get(family)
+            if got is None or got[0] != stamp:
+                return None
+            self.keys.move_to_end(family)
+            return got[1]
+
+    def keep_keys(self, family: str, stamp: tuple[Any, ...], keys: list[CmrtKey]) -> None:
+        with self.lock:
+            self.keys[family] = (stamp, keys)
+            self.keys.move_to_end(family)
+            while len(self.keys) > FAMILIES_KEPT:
+                self.keys.popitem(last=False)
+
+
 class SqlLibrary(SqlBase, LibraryRepository):
+    @property
+    def _kept(self) -> _Kept:
+        kept = self.__dict__.get("_kept_library")
+        if kept is None:  # made on first use: SqlBase.__init__ is the repository's one __init__
+            kept = self.__dict__.setdefault("_kept_library", _Kept())
+        return kept
+
+    def _records(self, ids: Sequence[str]) -> dict[str, CmrtRecord]:
+        """The records of `ids` that exist: kept ones from memory, the rest in one query."""
+        out: dict[str, CmrtRecord] = {}
+        missing = []
+        for cid in ids:
+            rec = self._kept.record(cid)
+            if rec is None:
+                missing.append(cid)
+            else:
+                out[cid] = rec
+        if missing:
+            with self._read_core() as conn:
+                got = [CmrtRecord(**row._mapping)
+                       for row in conn.execute(_RECORDS, {"ids": missing})]
+            self._kept.keep_records(got)
+            out.update((r.id, r) for r in got)
+        return out
+
     # ---- CMRT library -------------------------------------------------------------------
     def add_cmrt(self, entry):
         e = entry
@@ -154,30 +267,39 @@ class SqlLibrary(SqlBase, LibraryRepository):
             fell_without=None if e.fell_without is None else bool(e.fell_without),
             spec=_json(None if e.spec is None else dict(e.spec), "spec"),
         )  # fmt: skip
-        row = Cmrt(id=str(uuid.uuid4()), created_at=self._clock(), **values)
+        row = CmrtRow(id=str(uuid.uuid4()), created_at=self._clock(), **values)
         with self._write() as s:
-            if e.job_id is not None and s.get(Job, e.job_id) is None:
+            if e.job_id is not None and s.get(JobRow, e.job_id) is None:
                 raise Conflict(f"job {e.job_id} not found")
             s.add(row)
             s.flush()
-            s.add_all(CmrtParameter(cmrt_id=row.id, name=k, value=v) for k, v in tp.items())
+            s.add_all(CmrtParameterRow(cmrt_id=row.id, name=k, value=v) for k, v in tp.items())
             return row.id
 
     def job_cmrt(self, job_id):
         with self._read() as s:
             row = s.scalars(
-                select(Cmrt).where(Cmrt.job_id == job_id).order_by(Cmrt.created_at).limit(1)
+                select(CmrtRow).where(CmrtRow.job_id == job_id)
+                .order_by(CmrtRow.created_at).limit(1)
             ).one_or_none()
             return None if row is None else _cmrt_record(row)
 
     def get_cmrt(self, cmrt_id):
-        with self._read() as s:
-            row = s.get(Cmrt, cmrt_id)
-            if row is None:
-                raise NotFound(f"CMRT {cmrt_id!a} not found")
-            return _cmrt_record(row)
+        rec = self._kept.record(cmrt_id)
+        if rec is not None:
+            return rec
+        rec = self._records([cmrt_id]).get(cmrt_id)
+        if rec is None:
+            raise NotFound(f"CMRT {cmrt_id!a} not found")
+        return rec
 
     def find_cmrts(self, family, params, *, tolerance=None, character=None, limit=None):
+        keys = self.find_cmrt_keys(family, params, tolerance=tolerance, character=character,
+                                   limit=limit)
+        by_id = self._records([k.id for k in keys])
+        return [by_id[k.id] for k in keys if k.id in by_id]
+
+    def find_cmrt_keys(self, family, params, *, tolerance=None, character=None, limit=None):
         target = {k: _num(v, f"parameter {k!r}", allow_inf=False) for k, v in params.items()}
         tol: dict[str, float | None] = {}
         for name in target:
@@ -185,77 +307,62 @@ class SqlLibrary(SqlBase, LibraryRepository):
             if t is not None and (not math.isfinite(t) or t < 0):
                 raise ValueError(f"tolerance for {name!r} must be finite and >= 0")
             tol[name] = t
-        q = select(Cmrt).where(Cmrt.family == family)
-        for name, v in target.items():
-            half = tol[name] if tol[name] is not None else _exact_eps(v)
-            q = q.where(
-                Cmrt.id.in_(
-                    select(CmrtParameter.cmrt_id).where(
-                        CmrtParameter.name == name,
-                        CmrtParameter.value.between(v - half, v + half),
-                    )
-                )
-            )
-        with self._read() as s:
-            rows = s.scalars(q).all()
-            recs = [_cmrt_record(r) for r in rows]
-            stored: dict[str, dict[str, float]] = {r.id: {} for r in recs}
-            if recs and target:
-                for cid, name, value in s.execute(
-                    select(CmrtParameter.cmrt_id, CmrtParameter.name, CmrtParameter.value).where(
-                        CmrtParameter.cmrt_id.in_(list(stored)),
-                        CmrtParameter.name.in_(list(target)),
-                    )
-                ):
-                    stored[cid][name] = value
-        if character:
-            recs = [r for r in recs if _character_matches(r.character, character)]
-
-        def distance(r: CmrtRecord) -> float:
+        # Kept keys (checked against the store) hold every member's task parameters: the
+        # same numbers as the parameter rows, compared as SQL's `BETWEEN` would.
+        found: list[tuple[float, CmrtKey]] = []
+        for k in self.cmrt_keys(family):
             total = 0.0
             for name, v in target.items():
-                d = stored[r.id][name] - v
-                t = tol[name]
+                half = tol[name] if tol[name] is not None else _exact_eps(v)
+                x = k.task_parameters.get(name)
+                if x is None or not v - half <= x <= v + half:
+                    break
+                d, t = x - v, tol[name]
                 total += (d / t) ** 2 if t else (0.0 if abs(d) <= _exact_eps(v) else math.inf)
-            return math.sqrt(total)
-
-        recs.sort(key=lambda r: (distance(r), r.objective, r.created_at, r.id))
-        return recs if limit is None else recs[:limit]
+            else:
+                if not character or _character_matches(k.character or {}, character):
+                    found.append((math.sqrt(total), k))
+        found.sort(key=lambda dk: (dk[0], dk[1].objective, dk[1].created_at, dk[1].id))
+        keys = [k for _, k in found]
+        return keys if limit is None else keys[:limit]
 
     def list_cmrts(self, family=None, *, limit=None, offset=0):
-        conds = [] if family is None else [Cmrt.family == family]
+        conds = [] if family is None else [CmrtRow.family == family]
         with self._read() as s:
-            total = s.scalar(select(func.count()).select_from(Cmrt).where(*conds)) or 0
-            q = select(Cmrt).where(*conds).order_by(Cmrt.created_at.desc(), Cmrt.id)
+            total = s.scalar(select(func.count()).select_from(CmrtRow).where(*conds)) or 0
+            q = select(CmrtRow).where(*conds).order_by(CmrtRow.created_at.desc(), CmrtRow.id)
             rows = s.scalars(q.limit(limit).offset(offset)).all()
             return [_cmrt_record(r) for r in rows], int(total)
 
     def cmrt_keys(self, family):
-        # JSON columns keep a Python None as the JSON text `null`, not SQL NULL.
-        has_spec = and_(Cmrt.spec.is_not(None), cast(Cmrt.spec, Text) != "null")
-        q = (select(Cmrt.id, Cmrt.task_parameters, Cmrt.objective, Cmrt.knots, Cmrt.values,
-                    has_spec, Cmrt.created_at, Cmrt.preparation, Cmrt.decay, Cmrt.character)
-             .where(Cmrt.family == family).order_by(Cmrt.created_at.desc(), Cmrt.id))
-        with self._read() as s:
-            rows = s.execute(q).all()
-        return [
+        with self._read_core() as conn:
+            stamp = tuple(conn.execute(_FAMILY_STAMP, {"family": family}).one())
+            kept = self._kept.family_keys(family, stamp)
+            if kept is not None:
+                return list(kept)
+            rows = conn.execute(_FAMILY_KEYS, {"family": family}).all()
+        keys = [
             CmrtKey(id=cid, task_parameters={k: float(v) for k, v in tp.items()},
                     objective=float(obj), knots=len(knots),
                     vertical=bool(values) and isinstance(values[0], list),
                     has_spec=bool(spec), created_at=created, preparation=float(prep),
-                    decay=float(dec), character=character)
-            for cid, tp, obj, knots, values, spec, created, prep, dec, character in rows
+                    decay=float(dec), character=character, family=fam,
+                    objective_without=without, winner=winner, fell=bool(fell), job_id=job)
+            for (cid, tp, obj, knots, values, spec, created, prep, dec, character, fam, without,
+                 winner, fell, job) in rows
         ]
+        self._kept.keep_keys(family, stamp, keys)
+        return list(keys)
 
     def cmrt_families(self):
         with self._read() as s:
-            rows = s.execute(select(Cmrt.family, func.count()).group_by(Cmrt.family)
-                             .order_by(Cmrt.family)).all()
+            rows = s.execute(select(CmrtRow.family, func.count()).group_by(CmrtRow.family)
+                             .order_by(CmrtRow.family)).all()
             return [(str(f), int(n)) for f, n in rows]
 
     # ---- verified answers ---------------------------------------------------------------
     def add_verification(self, *, family, spec_hash, params_hash, source, members, outcome):
-        row = CmrtVerification(
+        row = CmrtVerificationRow(
             id=str(uuid.uuid4()), family=family, spec_hash=spec_hash, params_hash=params_hash,
             source=source, members=[str(m) for m in members],
             outcome=_json(dict(outcome), "outcome"), created_at=self._clock(),
@@ -271,9 +378,9 @@ class SqlLibrary(SqlBase, LibraryRepository):
 
     def get_verification(self, spec_hash, params_hash):
         with self._read() as s:
-            row = s.scalars(select(CmrtVerification).where(
-                CmrtVerification.spec_hash == spec_hash,
-                CmrtVerification.params_hash == params_hash)).one_or_none()
+            row = s.scalars(select(CmrtVerificationRow).where(
+                CmrtVerificationRow.spec_hash == spec_hash,
+                CmrtVerificationRow.params_hash == params_hash)).one_or_none()
             return None if row is None else _verification_record(row)
 
     # ---- PCA bases ----------------------------------------------------------------------
@@ -282,7 +389,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
         comps = _json(components, "components")
         if k < 1 or len(comps) != k or any(len(row) != len(m) for row in comps):
             raise ValueError(f"components must be {k} rows of length {len(m)}")
-        row = Basis(
+        row = BasisRow(
             id=str(uuid.uuid4()), family=family, k=int(k), mean=m, components=comps,
             variance_explained=_json(variance_explained, "variance_explained"),
             members=[str(x) for x in members], box=_json(box, "box"), created_at=self._clock(),
@@ -292,23 +399,23 @@ class SqlLibrary(SqlBase, LibraryRepository):
             return row.id
 
     def list_bases(self, family=None, *, limit=None, offset=0):
-        conds = [] if family is None else [Basis.family == family]
+        conds = [] if family is None else [BasisRow.family == family]
         with self._read() as s:
-            total = s.scalar(select(func.count()).select_from(Basis).where(*conds)) or 0
-            q = select(Basis).where(*conds).order_by(Basis.created_at.desc(), Basis.id)
+            total = s.scalar(select(func.count()).select_from(BasisRow).where(*conds)) or 0
+            q = select(BasisRow).where(*conds).order_by(BasisRow.created_at.desc(), BasisRow.id)
             rows = s.scalars(q.limit(limit).offset(offset)).all()
             return [_basis_record(b) for b in rows], int(total)
 
     def get_basis(self, basis_id):
         with self._read() as s:
-            row = s.get(Basis, basis_id)
+            row = s.get(BasisRow, basis_id)
             if row is None:
                 raise NotFound(f"basis {basis_id!a} not found")
             return _basis_record(row)
 
 
 
-def _verification_record(v: CmrtVerification) -> VerificationRecord:
+def _verification_record(v: CmrtVerificationRow) -> VerificationRecord:
     return VerificationRecord(
         id=v.id, family=v.family, spec_hash=v.spec_hash, params_hash=v.params_hash,
         source=v.source, members=list(v.members), outcome=dict(v.outcome),

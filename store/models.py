@@ -1,5 +1,9 @@
 """SQLAlchemy 2.0 models. Portable types only: the same schema runs on SQLite and PostgreSQL.
 
+Each model is one table's row and is named `<thing>Row` (`JobRow`, `CmrtRow`, ...): the names
+`Job`, `Basis`, `Evaluation` belong to what the rest of the product handles (the client's job,
+the PCA basis, a simulation's evaluation), and the store hands out `store.records` only.
+
 The schema is created by the Alembic migrations in `store/migrations` (see `store.db.init_db`);
 `Base.metadata` must stay identical to what they create (a test compares the two).
 """
@@ -65,7 +69,7 @@ class Base(DeclarativeBase):
     type_annotation_map = {datetime: UTCDateTime(), dict[str, Any]: JSON, Any: JSON}
 
 
-class Job(Base):
+class JobRow(Base):
     """One optimisation job: its spec, state machine, progress and the latest optimizer state."""
 
     __tablename__ = "jobs"
@@ -103,9 +107,9 @@ class Job(Base):
     result: Mapped[Any | None] = mapped_column(JSON, deferred=True)
 
 
-class Family(Base):
+class FamilyRow(Base):
     """A family of CMRTs along one task parameter: its request and, once finished, its report;
-    its runs are ordinary jobs (`FamilyRun`)."""
+    its runs are ordinary jobs (`FamilyRunRow`)."""
 
     __tablename__ = "families"
 
@@ -128,7 +132,7 @@ class Family(Base):
     finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
 
 
-class FamilyRun(Base):
+class FamilyRunRow(Base):
     """One run of a family's plan and the job that runs it (one job per run: the primary key
     makes creating it idempotent when several drivers advance the family)."""
 
@@ -143,7 +147,7 @@ class FamilyRun(Base):
     )
 
 
-class Generation(Base):
+class GenerationRow(Base):
     """One CMA-ES generation of a job: its figures and the optimizer state after telling it."""
 
     __tablename__ = "generations"
@@ -164,7 +168,7 @@ class Generation(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
 
 
-class Evaluation(Base):
+class EvaluationRow(Base):
     """One candidate of one generation: its parameters, result and attempt count."""
 
     __tablename__ = "evaluations"
@@ -186,7 +190,7 @@ class Evaluation(Base):
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime())
 
 
-class Cmrt(Base):
+class CmrtRow(Base):
     """A library entry: an optimised CMRT for one task of a family, at given task parameters."""
 
     __tablename__ = "cmrts"
@@ -215,7 +219,7 @@ class Cmrt(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
 
 
-class CmrtParameter(Base):
+class CmrtParameterRow(Base):
     """One task parameter of a library CMRT, as a row so any name is queryable and indexed."""
 
     __tablename__ = "cmrt_parameters"
@@ -228,7 +232,7 @@ class CmrtParameter(Base):
     value: Mapped[float] = mapped_column(Float)
 
 
-class Basis(Base):
+class BasisRow(Base):
     """A PCA basis of a family's library CMRTs (reduced-space re-optimisation)."""
 
     __tablename__ = "bases"
@@ -244,7 +248,7 @@ class Basis(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
 
 
-class CmrtVerification(Base):
+class CmrtVerificationRow(Base):
     """The simulated outcome of a CMRT the library served (an interpolation, or a member at a
     task it was not optimised for): one row per (spec, CMRT parameters), so that the next
     identical query is answered without simulating."""

@@ -230,8 +230,9 @@ class FamilyRecord:
 
 @dataclass(frozen=True)
 class CmrtKey:
-    """What picking library CMRTs by task parameter needs, without their curves and specs:
-    `LibraryRepository.cmrt_keys`."""
+    """What picking and listing library CMRTs by task parameter needs, without their curves,
+    splines and specs: `LibraryRepository.cmrt_keys` and `find_cmrt_keys` (a CMRT's summary
+    fields, as a `CmrtRecord` names them)."""
 
     id: str
     task_parameters: dict[str, float]
@@ -246,6 +247,11 @@ class CmrtKey:
     preparation: float = 0.0
     decay: float = 0.0
     character: dict[str, Any] | None = None
+    family: str = ""
+    objective_without: float | None = None
+    winner: str = "search"
+    fell: bool = False
+    job_id: str | None = None
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ from typing import Any
 from sqlalchemy import Connection, Engine, select
 from sqlalchemy.orm import Session
 
-from store.db import session_scope
+from store.db import READ_ONLY_OPTION, session_scope
 from store.errors import NotFound
-from store.models import Basis, Cmrt, Evaluation, Generation, Job
+from store.models import BasisRow, CmrtRow, EvaluationRow, GenerationRow, JobRow
 from store.records import (
     BasisRecord,
     CmrtRecord,
@@ -60,7 +60,7 @@ def _opt_num(value: Any, what: str) -> float | None:
     return None if value is None else _num(value, what)
 
 
-def _job_record(j: Job) -> JobRecord:
+def _job_record(j: JobRow) -> JobRecord:
     return JobRecord(
         id=j.id, name=j.name, family=j.family, task=j.task, spec=j.spec,
         spec_hash=j.spec_hash, seed=j.seed,
@@ -73,7 +73,7 @@ def _job_record(j: Job) -> JobRecord:
     )  # fmt: skip
 
 
-def _generation_record(g: Generation, with_state: bool) -> GenerationRecord:
+def _generation_record(g: GenerationRow, with_state: bool) -> GenerationRecord:
     return GenerationRecord(
         job_id=g.job_id, iteration=g.iteration, best=g.best, median=g.median, worst=g.worst,
         sigma=g.sigma, best_so_far=g.best_so_far, evaluations=g.evaluations,
@@ -82,7 +82,7 @@ def _generation_record(g: Generation, with_state: bool) -> GenerationRecord:
     )  # fmt: skip
 
 
-def _evaluation_record(e: Evaluation) -> EvaluationRecord:
+def _evaluation_record(e: EvaluationRow) -> EvaluationRecord:
     return EvaluationRecord(
         job_id=e.job_id, generation=e.generation, index=e.index, params=e.params,
         status=e.status, objective=e.objective, fell=e.fell, attempts=e.attempts,
@@ -94,11 +94,11 @@ def _evaluation_record(e: Evaluation) -> EvaluationRecord:
 _CMRT_RECORD_FIELDS = tuple(f.name for f in fields(CmrtRecord))
 
 
-def _cmrt_record(c: Cmrt) -> CmrtRecord:
+def _cmrt_record(c: CmrtRow) -> CmrtRecord:
     return CmrtRecord(**{name: getattr(c, name) for name in _CMRT_RECORD_FIELDS})
 
 
-def _basis_record(b: Basis) -> BasisRecord:
+def _basis_record(b: BasisRow) -> BasisRecord:
     return BasisRecord(
         id=b.id, family=b.family, k=b.k, mean=b.mean, components=b.components,
         variance_explained=b.variance_explained, members=b.members, box=b.box,
@@ -120,6 +120,7 @@ class SqlBase:
         self.engine = engine
         self._clock = clock
         self._postgres = engine.dialect.name == "postgresql"
+        self._read_engine = engine.execution_options(**{READ_ONLY_OPTION: True})
 
     # ---- helpers ------------------------------------------------------------------------
     def _write(self) -> Any:
@@ -140,12 +141,16 @@ class SqlBase:
     def _read(self) -> Any:
         return session_scope(self.engine, read_only=True)
 
+    def _read_core(self) -> Any:
+        """A Core connection in one read-only transaction (no ORM session: the hot reads)."""
+        return self._read_engine.begin()
+
     @staticmethod
-    def _lock_job(s: Session, job_id: str) -> Job:
+    def _lock_job(s: Session, job_id: str) -> JobRow:
         """Load and lock the job row (PostgreSQL: FOR NO KEY UPDATE; SQLite: the write
         transaction already excludes other writers)."""
         job = s.scalars(
-            select(Job).where(Job.id == job_id).with_for_update(key_share=True)
+            select(JobRow).where(JobRow.id == job_id).with_for_update(key_share=True)
         ).one_or_none()
         if job is None:
             raise NotFound(f"job {job_id!a} not found")
@@ -153,6 +158,6 @@ class SqlBase:
 
     @staticmethod
     def _require_job(s: Session, job_id: str) -> None:
-        if s.scalar(select(Job.id).where(Job.id == job_id)) is None:
+        if s.scalar(select(JobRow.id).where(JobRow.id == job_id)) is None:
             raise NotFound(f"job {job_id!a} not found")
 

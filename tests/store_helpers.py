@@ -7,7 +7,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, undefer
 
 from store.errors import NotFound
-from store.models import Basis, Cmrt, Evaluation, Job
+from store.models import BasisRow, CmrtRow, EvaluationRow, JobRow
 from store.records import BasisRecord, EvaluationRecord
 from store.sql import _basis_record, _evaluation_record
 
@@ -15,9 +15,9 @@ from store.sql import _basis_record, _evaluation_record
 def get_evaluation(repo, job_id: str, generation: int, index: int) -> EvaluationRecord:
     """One evaluation; raises NotFound."""
     with Session(repo.engine) as s:
-        ev = s.scalars(select(Evaluation).where(
-            Evaluation.job_id == job_id, Evaluation.generation == generation,
-            Evaluation.index == index)).one_or_none()
+        ev = s.scalars(select(EvaluationRow).where(
+            EvaluationRow.job_id == job_id, EvaluationRow.generation == generation,
+            EvaluationRow.index == index)).one_or_none()
         if ev is None:
             raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
         return _evaluation_record(ev)
@@ -26,8 +26,8 @@ def get_evaluation(repo, job_id: str, generation: int, index: int) -> Evaluation
 def get_optimizer_state(repo, job_id: str) -> bytes | None:
     """The job's pickled optimizer of its newest generation; raises NotFound."""
     with Session(repo.engine) as s:
-        job = s.scalars(select(Job).options(undefer(Job.optimizer_state))
-                        .where(Job.id == job_id)).one_or_none()
+        job = s.scalars(select(JobRow).options(undefer(JobRow.optimizer_state))
+                        .where(JobRow.id == job_id)).one_or_none()
         if job is None:
             raise NotFound(f"job {job_id} not found")
         return job.optimizer_state
@@ -36,15 +36,15 @@ def get_optimizer_state(repo, job_id: str) -> bytes | None:
 def cmrt_families(repo) -> dict[str, int]:
     """Family name -> number of library CMRTs."""
     with Session(repo.engine) as s:
-        rows = s.execute(select(Cmrt.family, func.count()).group_by(Cmrt.family)
-                         .order_by(Cmrt.family)).all()
+        rows = s.execute(select(CmrtRow.family, func.count()).group_by(CmrtRow.family)
+                         .order_by(CmrtRow.family)).all()
         return {f: int(n) for f, n in rows}
 
 
 def list_bases(repo, family: str | None = None) -> list[BasisRecord]:
     """Bases (of one family if given), newest first."""
-    conds = [] if family is None else [Basis.family == family]
+    conds = [] if family is None else [BasisRow.family == family]
     with Session(repo.engine) as s:
-        rows = s.scalars(select(Basis).where(*conds)
-                         .order_by(Basis.created_at.desc(), Basis.id)).all()
+        rows = s.scalars(select(BasisRow).where(*conds)
+                         .order_by(BasisRow.created_at.desc(), BasisRow.id)).all()
         return [_basis_record(b) for b in rows]

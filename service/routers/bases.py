@@ -12,7 +12,7 @@ from optim.errors import BasisError
 from service import schemas
 from service.body import read_model
 from service.deps import MAX_OFFSET, RepoDep, SettingsDep
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.views import basis_out
 
@@ -28,7 +28,7 @@ async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -
     try:
         basis_id = build_library_basis(repo, req.family, req.k)
     except BasisError as err:
-        raise ApiError(422, str(err)) from None
+        raise HttpError(422, str(err)) from None
     body = schemas.BasisOut.model_validate(basis_out(repo.get_basis(basis_id), request))
     return JSONResponse(body.model_dump(mode="json"), status_code=201,  # ISO 8601 times
                         headers={"Location": body.url})

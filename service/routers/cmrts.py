@@ -17,7 +17,7 @@ from service.deps import (
     task_parameters_doc,
     url_for,
 )
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses
 from service.routers.simulations import RETRY_AFTER_S
 from service.simulations import SimulationBusyError
@@ -44,14 +44,15 @@ def find_cmrts(
     task parameter (e.g. duration, force). Nearest first when a tolerance is given. With
     `curves=true` every item carries its `curve` (one request draws a family)."""
     if params and family is None:
-        raise ApiError(422, "family: required when querying by task parameters")
+        raise HttpError(422, "family: required when querying by task parameters")
     if not params:
         items, total = repo.list_cmrts(family, limit=limit, offset=offset)
     else:
+        find = repo.find_cmrts if curves else repo.find_cmrt_keys  # keys: no JSON read
         try:
-            found = repo.find_cmrts(family, params, tolerance=tolerance)
+            found = find(family, params, tolerance=tolerance)
         except ValueError as err:
-            raise ApiError(422, str(err)) from None
+            raise HttpError(422, str(err)) from None
         total, items = len(found), found[offset:offset + limit]
     out = []
     for r in items:
@@ -77,14 +78,14 @@ def query_point(repo: Any, family: str, params: dict[str, float], along: str | N
     """(library key, value, the other parameters, a note on a translated name) of a query at
     task parameters `params` (`along` names the interpolated one when there are several)."""
     if not params:
-        raise ApiError(422, f"{where}a task parameter to interpolate at is required, e.g. "
+        raise HttpError(422, f"{where}a task parameter to interpolate at is required, e.g. "
                             "mass=60")
     if along is None:
         if len(params) > 1:
-            raise ApiError(422, "along: required when several task parameters are given")
+            raise HttpError(422, "along: required when several task parameters are given")
         along = next(iter(params))
     if along not in params:
-        raise ApiError(422, f"along: {along!r} is not among the given parameters")
+        raise HttpError(422, f"along: {along!r} is not among the given parameters")
     notes, named = [], {}
     for name, v in params.items():
         key = name
@@ -92,11 +93,11 @@ def query_point(repo: Any, family: str, params: dict[str, float], along: str | N
             try:
                 key, note = answers.library_parameter(repo, family, name)
             except answers.AnswerError as err:
-                raise ApiError(422, f"{where}{err}") from None
+                raise HttpError(422, f"{where}{err}") from None
             if note:
                 notes.append(note)
         if key in named:
-            raise ApiError(422, f"{where}{name}: given twice ({key})")
+            raise HttpError(422, f"{where}{name}: given twice ({key})")
         named[key] = v
         if name == along:
             along = key
@@ -143,9 +144,9 @@ def interpolate_cmrt(
         out = answers.serve(svc.repo, family, key, value, filters=filters,
                             extrapolate=extrapolate, simulate=simulate)
     except (InterpolationError, answers.AnswerError) as err:
-        raise ApiError(422, str(err)) from None
+        raise HttpError(422, str(err)) from None
     except SimulationBusyError:
-        raise ApiError(503, "verify: every simulation process is busy; retry later",
+        raise HttpError(503, "verify: every simulation process is busy; retry later",
                        headers={"Retry-After": str(RETRY_AFTER_S)}) from None
     out["note"] = note
     for n in out["neighbours"]:

@@ -14,7 +14,7 @@ from optim.family.spec import FamilyError
 from service import paper, schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from store.records import FAMILY_STATUSES
 
@@ -64,7 +64,7 @@ async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
     try:  # validated, admitted as a whole, stored (application.families)
         fam, budget, runs = app_families.submit_family(svc.repo, svc.settings, data)
     except (FamilyError, BudgetExceeded) as err:
-        raise ApiError(422, str(err)) from None
+        raise HttpError(422, str(err)) from None
     url = url_for(request, "get_family", family_id=fam.id)
     return JSONResponse({"id": fam.id, "url": url, "status": fam.status,
                          "runs": runs, "budget": budget.to_dict()},

@@ -15,7 +15,7 @@ from optim.spline import decode, sample_curve
 from service import schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.views import generation_out, job_cmrt_id, job_out
 from sim.errors import SpecError
@@ -38,17 +38,17 @@ def _envelope(data: Any, seed: int | None, basis: str | None, start: str
         return data, seed, basis, start
     extra = set(data) - _ENVELOPE_KEYS
     if extra:
-        raise ApiError(422, f"{sorted(extra)[0]}: unknown field (allowed: spec, seed, basis, "
+        raise HttpError(422, f"{sorted(extra)[0]}: unknown field (allowed: spec, seed, basis, "
                             "start)")
     env_seed, env_basis = data.get("seed"), data.get("basis")
     if env_seed is not None and (not isinstance(env_seed, int) or isinstance(env_seed, bool)
                                  or not 0 <= env_seed <= MAX_SEED):
-        raise ApiError(422, "seed: must be an integer in [0, 2^31)")
+        raise HttpError(422, "seed: must be an integer in [0, 2^31)")
     if env_basis is not None and (not isinstance(env_basis, str) or len(env_basis) > 64):
-        raise ApiError(422, "basis: must be a basis id (string)")
+        raise HttpError(422, "basis: must be a basis id (string)")
     env_start = data.get("start")
     if env_start is not None and env_start not in START_CHOICES:
-        raise ApiError(422, f"start: must be one of {', '.join(START_CHOICES)}")
+        raise HttpError(422, f"start: must be one of {', '.join(START_CHOICES)}")
     return (data["spec"], env_seed if env_seed is not None else seed,
             env_basis if env_basis is not None else basis,
             env_start if env_start is not None else start)
@@ -79,13 +79,13 @@ async def submit_job(
     try:  # the one parse: the drivers of this process find it by its hash (optim.objective)
         canonical = parse_canonical(data, "spec")
     except SpecError as err:
-        raise ApiError(422, str(err)) from None
+        raise HttpError(422, str(err)) from None
     try:  # its basis, its budget against the server's ceiling, its start (application.jobs)
         job, budget = jobs.submit_job(svc.repo, svc.settings, canonical,
                                       seed=0 if seed is None else seed, basis_id=basis,
                                       start=start)
     except (UnusableBasisError, BudgetExceeded) as err:
-        raise ApiError(422, str(err)) from None
+        raise HttpError(422, str(err)) from None
     if svc.run_drivers:
         svc.runner.submit(job.id)
     url = url_for(request, "get_job", job_id=job.id)
@@ -182,7 +182,7 @@ def job_best(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
 def cancel_job(job_id: str, request: Request, repo: RepoDep) -> JSONResponse:
     job = repo.get_job(job_id)
     if job.terminal:
-        raise ApiError(409, f"job {job_id} already finished ({job.status})")
+        raise HttpError(409, f"job {job_id} already finished ({job.status})")
     job = repo.request_cancel(job_id)
     return JSONResponse({"id": job.id, "status": job.status,
                          "cancel_requested": job.cancel_requested,

@@ -8,7 +8,7 @@ from fastapi.responses import JSONResponse
 from service import links, schemas
 from service.body import read_model
 from service.deps import RepoDep, SettingsDep
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.security import token_of
 
@@ -26,7 +26,7 @@ async def create_link(request: Request, settings: SettingsDep, repo: RepoDep) ->
     such job or library CMRT."""
     req = await read_model(request, schemas.LinkRequest, settings.max_body_bytes)
     if not links.SIGNABLE.fullmatch(req.path):
-        raise ApiError(422, "path: must be a replay page, /jobs/{id}/replay or "
+        raise HttpError(422, "path: must be a replay page, /jobs/{id}/replay or "
                             "/cmrts/{id}/replay (id: 1-64 of A-Z a-z 0-9 . _ ~ -)")
     kind, ident = req.path.split("/")[1:3]
     if kind == "jobs":  # store.NotFound: 404

@@ -14,7 +14,7 @@ from optim.errors import InterpolationError
 from service import schemas
 from service.body import read_model
 from service.deps import ServicesDep, url_for
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.routers.cmrts import query_point
 
@@ -40,7 +40,7 @@ async def refine_cmrt(request: Request, svc: ServicesDep) -> JSONResponse:
             extrapolate=req.extrapolate)
     except (InterpolationError, answers.AnswerError, UnusableBasisError,
             BudgetExceeded) as err:
-        raise ApiError(422, str(err)) from None
+        raise HttpError(422, str(err)) from None
     if svc.run_drivers:
         svc.runner.submit(job.id)
     answer["note"] = note

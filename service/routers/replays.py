@@ -23,7 +23,7 @@ from optim.spline import check_params
 from service import schemas
 from service.body import read_model
 from service.deps import ServicesDep, url_for
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.replay_page import render_replay, replay_csp
 from service.routers.simulations import RETRY_AFTER_S, _params
@@ -51,10 +51,10 @@ async def _document(svc: Any, spec_data: dict[str, Any], params: list[float] | N
     try:
         out = await svc.simulations.call(run_replay, spec_data, params, about, compare)
     except SimulationBusyError:
-        raise ApiError(503, "simulations: every simulation process is busy; retry later",
+        raise HttpError(503, "simulations: every simulation process is busy; retry later",
                        headers={"Retry-After": str(RETRY_AFTER_S)}) from None
     if out["status"] != "done":
-        raise ApiError(failed_status, f"replay: the simulation failed ({out['error']})")
+        raise HttpError(failed_status, f"replay: the simulation failed ({out['error']})")
     return out["replay"]
 
 
@@ -66,14 +66,14 @@ def _stored(load: Callable[[], TaskSpec], document: dict[str, Any], params: Any,
     try:
         checked = check_params(load(), params)
     except (SpecError, ParamsError) as err:
-        raise ApiError(409, f"{what}: cannot be replayed ({err})") from None
+        raise HttpError(409, f"{what}: cannot be replayed ({err})") from None
     return document, [float(v) for v in checked]
 
 
 async def _cmrt_doc(cmrt_id: str, request: Request, svc: Any, compare: bool) -> dict[str, Any]:
     rec = svc.repo.get_cmrt(cmrt_id)  # store.NotFound: 404
     if rec.spec is None:
-        raise ApiError(409, f"cmrt {cmrt_id!r}: stored without its task spec; it cannot be "
+        raise HttpError(409, f"cmrt {cmrt_id!r}: stored without its task spec; it cannot be "
                             "replayed on its own task")
     what = f"cmrt {cmrt_id!r}"
     spec, params = _stored(lambda: parse_spec(rec.spec, what), rec.spec, rec.params, what)
@@ -85,7 +85,7 @@ async def _cmrt_doc(cmrt_id: str, request: Request, svc: Any, compare: bool) -> 
 async def _job_doc(job_id: str, request: Request, svc: Any, compare: bool) -> dict[str, Any]:
     job = svc.repo.get_job(job_id)  # store.NotFound: 404
     if job.best_params is None:
-        raise ApiError(409, f"job {job_id!r}: no best candidate yet ({job.status})")
+        raise HttpError(409, f"job {job_id!r}: no best candidate yet ({job.status})")
     # the job's spec by its hash: parsed once per process, not at every replay
     spec, params = _stored(lambda: stored_job_spec(job).spec, job.spec, job.best_params,
                            f"job {job_id!r}")

@@ -14,7 +14,7 @@ from optim.spline import check_params
 from service import schemas
 from service.body import read_model
 from service.deps import ServicesDep, url_for
-from service.errors import ApiError
+from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.simulations import SimulationBusyError
 from store import NotFound
@@ -32,20 +32,20 @@ def _params(svc: Any, request: Request, req: schemas.SimulationRequest
     c = req.cmrt
     if c is None:
         return None, None
-    if isinstance(c, schemas.LibraryCmrt):
+    if isinstance(c, schemas.LibraryCmrtRef):
         try:
             rec = svc.repo.get_cmrt(c.id)
         except NotFound:
-            raise ApiError(422, f"cmrt.id: no library CMRT {c.id!r}") from None
+            raise HttpError(422, f"cmrt.id: no library CMRT {c.id!r}") from None
         params, about = rec.params, {"source": "library", "id": rec.id,
                                      "url": url_for(request, "get_cmrt", cmrt_id=rec.id)}
     elif isinstance(c, schemas.JobBestCmrt):
         try:
             job = svc.repo.get_job(c.id)
         except NotFound:
-            raise ApiError(422, f"cmrt.id: no job {c.id!r}") from None
+            raise HttpError(422, f"cmrt.id: no job {c.id!r}") from None
         if job.best_params is None:
-            raise ApiError(422, f"cmrt.id: job {c.id!r} has no best candidate yet "
+            raise HttpError(422, f"cmrt.id: job {c.id!r} has no best candidate yet "
                                 f"({job.status})")
         params, about = job.best_params, {"source": "job", "id": job.id,
                                           "url": url_for(request, "get_job", job_id=job.id),
@@ -55,7 +55,7 @@ def _params(svc: Any, request: Request, req: schemas.SimulationRequest
     try:
         checked = check_params(req.spec, params)
     except ParamsError as err:
-        raise ApiError(422, f"cmrt.{err}") from None
+        raise HttpError(422, f"cmrt.{err}") from None
     about["params"] = [float(v) for v in checked]
     return about["params"], about
 
@@ -76,7 +76,7 @@ async def simulate(request: Request, svc: ServicesDep) -> JSONResponse:
         out = await svc.simulations.run(req.spec.model_dump(mode="json"), params,
                                         traces=req.traces, frames=req.frames)
     except SimulationBusyError:
-        raise ApiError(503, "simulations: every simulation process is busy; retry later",
+        raise HttpError(503, "simulations: every simulation process is busy; retry later",
                        headers={"Retry-After": str(RETRY_AFTER_S)}) from None
     out["cmrt"] = about
     log.info("simulation %s (%s, CMRT %s): %s in %.2f s CPU", req.spec.name, req.spec.task_type,

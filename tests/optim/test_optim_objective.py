@@ -25,7 +25,7 @@ def tiny():
 
 
 def test_pickles_as_hash_and_text_and_caches_one_simulator(tiny):
-    objective_mod.clear_cache()
+    SPECS.clear()
     f = SimObjective(tiny)
     canonical = canonical_spec(tiny)
     g = pickle.loads(pickle.dumps(f))
@@ -41,7 +41,7 @@ def test_pickles_as_hash_and_text_and_caches_one_simulator(tiny):
 def test_one_cache_parses_a_spec_once_and_bounds_its_simulators(tiny):
     """A spec met in a process by its hash (a pickled objective, a stored job) is parsed on the
     first miss only; the cache keeps the simulators of the most recently used specs."""
-    objective_mod.clear_cache()
+    SPECS.clear()
     canonical = canonical_spec(tiny)
     parsed = []
 

@@ -212,3 +212,40 @@ def test_verification_first_stored_wins(repo: SqlRepository) -> None:
         family="domino", spec_hash="s" * 64, params_hash="q" * 64, source="member",
         members=["a"], outcome={"status": "failed", "error": "diverged"})
     assert other.id != first.id and other.outcome["status"] == "failed"
+
+
+def test_find_keys_are_the_found_cmrts_summaries(repo: SqlRepository) -> None:
+    for i, force in enumerate((10.0, 12.0, 15.0, 20.0, 12.0)):
+        add(repo, duration=0.3, force=force, objective=2.0 + i)
+    add(repo, family="bend", duration=0.3, force=12.0)
+    for params, tol, character in (
+        ({"force": 12.0}, None, None),
+        ({"force": 13.0}, 3.0, None),
+        ({"force": 13.0, "duration": 0.3}, {"force": 10.0, "duration": 0.0}, None),
+        ({"force": 13.0}, 3.0, {"height": 1.75}),
+        ({"force": 13.0}, 3.0, {"height": 1.8}),
+    ):
+        recs = repo.find_cmrts("push", params, tolerance=tol, character=character)
+        keys = repo.find_cmrt_keys("push", params, tolerance=tol, character=character)
+        assert [k.id for k in keys] == [r.id for r in recs]
+        for k, r in zip(keys, recs, strict=True):
+            assert (k.family, k.task_parameters, k.objective, k.objective_without, k.winner,
+                    k.fell, k.job_id, k.character, k.created_at) == (
+                r.family, r.task_parameters, r.objective, r.objective_without, r.winner,
+                r.fell, r.job_id, r.character, r.created_at)
+    assert [len(repo.find_cmrt_keys("push", {"force": 13.0}, tolerance=3.0, limit=n))
+            for n in (1, 2, 10)] == [1, 2, 4]
+
+
+def test_what_another_repository_adds_is_read_at_once(repo: SqlRepository) -> None:
+    """The library keeps what it read, and still answers with what another process (another
+    repository on the same database) has added since."""
+    other = SqlRepository(repo.engine)
+    a = add(repo, duration=0.3, force=10.0)
+    assert [k.id for k in other.cmrt_keys("push")] == [a]
+    assert [r.id for r in other.find_cmrts("push", {"force": 11.0}, tolerance=2.0)] == [a]
+    b = add(repo, duration=0.3, force=11.0)
+    assert [k.id for k in other.cmrt_keys("push")] == [b, a]
+    assert [r.id for r in other.find_cmrts("push", {"force": 11.0}, tolerance=2.0)] == [b, a]
+    assert [k.id for k in other.find_cmrt_keys("push", {"force": 11.0})] == [b]
+    assert other.get_cmrt(b) == repo.get_cmrt(b)

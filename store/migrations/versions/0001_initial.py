@@ -21,6 +21,17 @@ def _ts(name: str, nullable: bool = False) -> sa.Column:
 
 
 def upgrade() -> None:
+    # tables in an order where every foreign key names an existing table
+    _create_bases()
+    _create_jobs()
+    _create_cmrts()
+    _create_evaluations()
+    _create_generations()
+    _create_cmrt_parameters()
+
+
+def _create_bases() -> None:
+    """PCA bases of a family."""
     op.create_table(
         "bases",
         sa.Column("id", sa.String(length=36), nullable=False),
@@ -36,6 +47,9 @@ def upgrade() -> None:
     )
     op.create_index(op.f("ix_bases_family"), "bases", ["family"])
 
+
+def _create_jobs() -> None:
+    """Optimisation jobs (a job may name the basis it searches in)."""
     op.create_table(
         "jobs",
         sa.Column("id", sa.String(length=36), nullable=False),
@@ -70,6 +84,9 @@ def upgrade() -> None:
     op.create_index(op.f("ix_jobs_family"), "jobs", ["family"])
     op.create_index(op.f("ix_jobs_status"), "jobs", ["status"])
 
+
+def _create_cmrts() -> None:
+    """The library's CMRTs (each from the job that found it, if any)."""
     op.create_table(
         "cmrts",
         sa.Column("id", sa.String(length=36), nullable=False),
@@ -98,6 +115,9 @@ def upgrade() -> None:
     op.create_index(op.f("ix_cmrts_family"), "cmrts", ["family"])
     op.create_index(op.f("ix_cmrts_job_id"), "cmrts", ["job_id"])
 
+
+def _create_evaluations() -> None:
+    """A job's candidates, one row per generation and index."""
     op.create_table(
         "evaluations",
         sa.Column("id", sa.Integer(), autoincrement=True, nullable=False),
@@ -123,6 +143,9 @@ def upgrade() -> None:
         ),
     )
 
+
+def _create_generations() -> None:
+    """A job's generations (statistics and the optimizer's state)."""
     op.create_table(
         "generations",
         sa.Column("id", sa.Integer(), autoincrement=True, nullable=False),
@@ -145,6 +168,9 @@ def upgrade() -> None:
         sa.UniqueConstraint("job_id", "iteration", name=op.f("uq_generations_job_id_iteration")),
     )
 
+
+def _create_cmrt_parameters() -> None:
+    """A library CMRT's task parameters, one row each (the nearness queries' index)."""
     op.create_table(
         "cmrt_parameters",
         sa.Column("cmrt_id", sa.String(length=36), nullable=False),

@@ -11,7 +11,9 @@ from sqlalchemy import bindparam, case, func, insert, select, text, update
 from sqlalchemy.orm import Session, undefer
 
 from store.errors import NotFound
-from store.models import Evaluation, Generation, Job
+from store.models import EvaluationRow as Evaluation
+from store.models import GenerationRow as Generation
+from store.models import JobRow as Job
 from store.records import (
     DONE,
     EVAL_FAILED,
