@@ -34,8 +34,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from application import jobs
 from application.admission import default_popsize
 from application.library import (
@@ -44,6 +42,7 @@ from application.library import (
     nearer,
     neighbours_answer,
     params_distance,
+    spline_of,
 )
 from cmrt.canonical import text_hash
 from cmrt.settings import Settings
@@ -265,10 +264,7 @@ def _member_spline(rec: CmrtRecord) -> CmrtSpline:
 
 def _answer_spline(d: Mapping[str, Any]) -> CmrtSpline:
     """The spline of an answer's curve fields."""
-    return CmrtSpline(d["length"], np.asarray(d["knot_times"], dtype=float),
-                      np.asarray(d["values"], dtype=float),
-                      None if d["vertical_values"] is None
-                      else np.asarray(d["vertical_values"], dtype=float))
+    return spline_of(d["length"], d["knot_times"], d["values"], d["vertical_values"])
 
 
 def _set_candidate(out: dict[str, Any], c: _Candidate,

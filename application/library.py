@@ -5,8 +5,9 @@ record without parsing its spec."""
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +40,26 @@ def params_distance(a: CmrtRecord, b: CmrtRecord) -> float:
     return float(np.sqrt(np.mean((x - y) ** 2))) if x.shape == y.shape else math.inf
 
 
+#: Splines kept by their data: the library's answers build the same few members' and
+#: interpolations' splines at every query (a spline is immutable once built).
+SPLINES_KEPT = 4096
+
+
+def spline_of(length: float, knot_times: Sequence[float], values: Sequence[float],
+              vertical_values: Sequence[float] | None = None) -> CmrtSpline:
+    """`CmrtSpline(length, knot_times, values, vertical_values)`, shared by every caller
+    asking for the same numbers (ParamsError as the constructor raises it)."""
+    return _spline(float(length), tuple(map(float, knot_times)), tuple(map(float, values)),
+                   None if vertical_values is None else tuple(map(float, vertical_values)))
+
+
+@functools.lru_cache(maxsize=SPLINES_KEPT)
+def _spline(length: float, knot_times: tuple[float, ...], values: tuple[float, ...],
+            vertical_values: tuple[float, ...] | None) -> CmrtSpline:
+    return CmrtSpline(length, np.asarray(knot_times), np.asarray(values),
+                      None if vertical_values is None else np.asarray(vertical_values))
+
+
 @dataclass(frozen=True)
 class LibraryCmrt:
     """A library CMRT as `optim.interpolate` and `optim.pca` read it (`optim.sample.CmrtSample`):
@@ -62,9 +83,7 @@ class LibraryCmrt:
 
     def spline(self) -> CmrtSpline:
         """The decoded spline."""
-        return CmrtSpline(self.length, np.asarray(self.knot_times), np.asarray(self.values),
-                          None if self.vertical_values is None
-                          else np.asarray(self.vertical_values))
+        return spline_of(self.length, self.knot_times, self.values, self.vertical_values)
 
     def task_parameters(self) -> dict[str, float]:
         return dict(self.parameters)
@@ -164,7 +183,7 @@ def neighbours_answer(
     by_id = {r.id: r for r in members}
     out = interpolate([LibraryCmrt.of(r) for r in members], value, key=key,
                       extrapolate=extrapolate)
-    spline = out.spline()
+    spline = spline_of(out.length, out.knot_times, out.values, out.vertical_values)
     d = out.to_dict()
     neighbours, recs = [], []
     for cid, v in ((out.lower, out.lower_value), (out.upper, out.upper_value)):
@@ -218,9 +237,7 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
         except InterpolationError:
             continue
         vy = out["vertical_values"]
-        spline = CmrtSpline(out["length"], np.asarray(out["knot_times"]),
-                            np.asarray(out["values"]),
-                            None if vy is None else np.asarray(vy))
+        spline = spline_of(out["length"], out["knot_times"], out["values"], vy)
         ids = [n["id"] for n in out["neighbours"]]
         what = (f"library CMRT {ids[0]} ({key} = {params[key]:g})" if out["exact"] else
                 f"library: interpolated along {key} between " + " and ".join(
@@ -272,4 +289,4 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
 
 __all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "SWITCH_DISTANCE", "LibraryCmrt",
            "import_family", "library_entry", "library_members",
-           "library_start", "nearer", "neighbours_answer", "params_distance"]
+           "library_start", "nearer", "neighbours_answer", "params_distance", "spline_of"]

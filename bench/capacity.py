@@ -14,7 +14,7 @@ For each worker count W and evaluation time S, on a fresh database and broker:
   * W worker processes: ceil(W / --per-instance) instances of the product's worker command
     (`cmrt worker`, prefork, `--concurrency` up to --per-instance: one instance stands for one
     host), whose objective is `SleepingObjective(S)` (below), set through the product's
-    own objective hook (`worker.evaluation.JobSpecs(factory)`, the one the local pool's
+    own objective hook (`worker.candidates.JobSpecs(factory)`, the one the local pool's
     `objective_factory` fills) before Celery forks: the worker runs every store call, notice
     and Celery step of a real evaluation, only the simulation is a sleep;
   * J = max(4, ceil(--jobs-per-worker x W)) jobs... at least enough candidates in flight to
@@ -287,7 +287,7 @@ def run_worker(args: argparse.Namespace) -> int:
     """`cmrt worker` whose objective sleeps (see the module docstring)."""
     from cli.main import main as cmrt_main
     from worker import tasks
-    from worker.evaluation import JobSpecs
+    from worker.candidates import JobSpecs
 
     objective = SleepingObjective(args.sleep)
     tasks._cache = JobSpecs(lambda _spec: objective)  # before Celery forks its pool

@@ -27,7 +27,7 @@ From that account it prints the ratio the CPU alone predicts for an otherwise id
 as many cores as workers, every process CPU-bound and no idle gaps:
 (sim + pool overhead) / (sim + Celery overhead), sim being the simulations' own CPU per
 candidate. It prints the load average before and after each clip length.
-`--store N` also times the worker's store path alone: `worker.evaluation.run_candidate` with a
+`--store N` also times the worker's store path alone: `worker.candidates.run_candidate` with a
 null objective on a worker's repository, N times in this process against the same PostgreSQL
 database (median and mean wall ms, mean CPU ms).
 No assertions: timings on a shared machine are noisy; run it on an otherwise idle machine for
@@ -265,7 +265,7 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
 
 def store_path(spec, n: int, scratch: _Scratch) -> dict:
     """Median and mean ms of `run_candidate` with a null objective (claim, result; no Celery)."""
-    from worker.evaluation import JobSpecs, open_worker_repository, run_candidate
+    from worker.candidates import JobSpecs, open_worker_repository, run_candidate
 
     repo = open_worker_repository(scratch.db_url)  # as in a Celery worker process
     try:

@@ -175,7 +175,8 @@ class CellResult:
 
     @property
     def foot_steps(self) -> int | None:
-        return getattr(self.outcome, "foot_steps", None)
+        o = self.outcome  # a cell whose evaluation raised is a plain EvalOutcome
+        return o.foot_steps if isinstance(o, CellOutcome) else None
 
     def to_dict(self) -> dict[str, Any]:
         o = self.outcome

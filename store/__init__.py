@@ -6,7 +6,7 @@
                           family=spec.family_name, task=spec.task_type, seed=1, workers=2)
 
 The contract is `store.repository.Repository`, split by aggregate: `store.jobs` (jobs, driver
-lease), `store.evaluations` (generations, evaluations), `store.library` (CMRT library, PCA
+lease), `store.generations` (generations, evaluations), `store.library` (CMRT library, PCA
 bases); `store.sql` holds what their SQLAlchemy implementations share. No web or queue imports.
 """
 

@@ -7,7 +7,7 @@ the errors of `store.errors`. Several processes (the driver, local pool workers,
 the HTTP service) may use the same database at once: every write that others race on is atomic.
 
 The contract is split by aggregate, each part with its docstrings: `store.jobs.JobRepository`
-(jobs, driver lease), `store.evaluations.EvaluationRepository` (generations, evaluations),
+(jobs, driver lease), `store.generations.EvaluationRepository` (generations, evaluations),
 `store.library.LibraryRepository` (CMRT library, PCA bases), `store.families.FamilyRepository`
 (families of CMRTs, whose runs are jobs); `Repository` is all four and `SqlRepository` their
 SQLAlchemy implementations together.
@@ -33,8 +33,8 @@ Typical job flow (docs/service.md, "Architecture"):
 
 from __future__ import annotations
 
-from store.evaluations import EvaluationRepository, SqlEvaluations
 from store.families import FamilyRepository, SqlFamilies
+from store.generations import EvaluationRepository, SqlEvaluations
 from store.jobs import JobRepository, SqlJobs
 from store.library import LibraryRepository, SqlLibrary
 from store.sql import Clock, utcnow

@@ -66,7 +66,7 @@ from store.records import (
     RUNNING,
     STOPPED,
 )
-from worker.evaluation import (
+from worker.candidates import (
     DriverInterruptError,
     DriverShutdownError,
     JobCancelledError,
@@ -146,7 +146,7 @@ class StoreEvaluator:
 
 def _stored_outcome(row: Any) -> EvalOutcome:
     """The EvalOutcome of a stored evaluation row (its details carry the error and the fall
-    and task verdicts, `worker.evaluation.outcome_fields`)."""
+    and task verdicts, `worker.candidates.outcome_fields`)."""
     d = row.details or {}
     return EvalOutcome(objective=float(row.objective), fell=bool(row.fell),
                        cpu_seconds=float(row.cpu_seconds or 0.0), error=d.get("error"),

@@ -2,7 +2,7 @@
 candidates are already stored as pending evaluations (keyed by job, generation, index) and the
 executor returns once every one of them is resolved (done or failed).
 
-- `LocalPoolExecutor` (embedded default, no broker): `worker.evaluation.run_candidates` (the
+- `LocalPoolExecutor` (embedded default, no broker): `worker.candidates.run_candidates` (the
   Celery task's own function: claim, attempts, fail, record) with the evaluations in this
   process' `FairPool` (worker.fairpool: round robin between jobs, a stopped job's running
   candidates dropped), so a candidate that kills its pool process fails its job after
@@ -34,7 +34,7 @@ from optim.errors import EvaluationError
 from optim.executors import Executor as BatchExecutor
 from store import EvaluationRecord, Repository
 from store.records import DONE, PENDING
-from worker.evaluation import (
+from worker.candidates import (
     JobCancelledError,
     JobFailedError,
     JobSpecs,
@@ -52,7 +52,7 @@ log = logging.getLogger(__name__)
 
 
 #: Called by executors while they wait: raises DriverInterruptError when the driver must stop.
-Checkpoint = Callable[[], None]
+InterruptCheck = Callable[[], None]
 
 
 class GenerationExecutor(ABC):
@@ -66,7 +66,7 @@ class GenerationExecutor(ABC):
         job_id: str,
         generation: int,
         population: int,
-        check: Checkpoint,
+        check: InterruptCheck,
         cut_margin: float | None = None,
     ) -> list[EvaluationRecord]:
         """Resolve every pending evaluation of (job, generation); return them in index order.
@@ -145,7 +145,7 @@ class LocalPoolExecutor(GenerationExecutor):
                                  max_attempts=self.config.max_attempts, cache=self.cache,
                                  pool_run=pool_run, worker_name=self.node)
             if all(r["status"] == "skipped" for r in out):  # the job ended meanwhile
-                time.sleep(POLL_S)  # until the driver's checkpoint reads why
+                time.sleep(POLL_S)  # until the driver's interrupt check reads why
 
     def stats(self):
         return {"workers": self.pool.workers}
@@ -229,7 +229,8 @@ class CeleryExecutor(GenerationExecutor):
     """Sends a generation's pending candidates as `evaluate_candidates` tasks (a few candidates
     each, `plan_batches`) and waits for their results: blocked on the job's result notices
     (worker.notify) when the broker is Redis, reading the store when one arrives and at least
-    every `notify.FALLBACK_POLL_S` s; polling the store (`PollSchedule`) otherwise."""
+    every `notify.FALLBACK_POLL_S` s; polling the store (`PollSchedule`) otherwise. One
+    generation's sending is a `GenerationDispatch`, its waiting a `ResultWait`."""
 
     kind = "celery"
 
@@ -243,12 +244,10 @@ class CeleryExecutor(GenerationExecutor):
         self.sent = 0
         self.tasks = 0
         self.resent = 0
+        self.revoked = 0
         self._errors = _broker_errors()
         self._lock = threading.Lock()
         self._last_progress = time.monotonic()
-        #: Celery task ids of the messages sent, per (job, generation): what a cancel revokes.
-        self._task_ids: dict[tuple[str, int], dict[int, str]] = {}
-        self.revoked = 0
         self._waiter = NoticeWaiter(config.broker_url if app is not None else None)
 
     @property
@@ -260,13 +259,16 @@ class CeleryExecutor(GenerationExecutor):
 
     # -- broker ------------------------------------------------------------------------------
     def _send(
-        self, job_id: str, generation: int, batches: Sequence[Sequence[int]], check: Checkpoint
-    ) -> None:
+        self, job_id: str, generation: int, batches: Sequence[Sequence[int]],
+        check: InterruptCheck,
+    ) -> dict[int, str]:
         """One `evaluate_candidates` task per batch of indices, with the time limits of its
-        length (`eval_time_limit` per candidate)."""
+        length (`eval_time_limit` per candidate); returns the Celery task id of each index
+        sent (what a cancel revokes)."""
         from worker.celery_app import TASK_EVALUATE_BATCH
 
         pending = [list(map(int, b)) for b in batches if len(b)]
+        task_ids: dict[int, str] = {}
         down_since: float | None = None
         delay = 0.2
         limit = self.config.eval_time_limit
@@ -294,10 +296,8 @@ class CeleryExecutor(GenerationExecutor):
                 pending.pop(0)
                 self.sent += n
                 self.tasks += 1
-                if res is not None and getattr(res, "id", None):
-                    with self._lock:
-                        ids = self._task_ids.setdefault((job_id, generation), {})
-                        ids.update(dict.fromkeys(batch, res.id))
+                if res is not None and res.id:
+                    task_ids.update(dict.fromkeys(batch, res.id))
                 down_since, delay = None, 0.2
             except self._errors as err:
                 now = time.monotonic()
@@ -312,6 +312,7 @@ class CeleryExecutor(GenerationExecutor):
                 check()
                 time.sleep(delay)
                 delay = min(delay * 2, 5.0)
+        return task_ids
 
     def ping(self, timeout: float = 2.0) -> None:
         """Raise if the broker cannot be reached."""
@@ -320,140 +321,238 @@ class CeleryExecutor(GenerationExecutor):
 
     # -- generation ----------------------------------------------------------------------------
     def _progress(self) -> None:
+        """An evaluation of a job driven here finished (what the stall timeout measures from)."""
         with self._lock:
             self._last_progress = time.monotonic()
 
-    def _revoke(self, job_id: str, generation: int, indices: Sequence[int]) -> None:
-        """Drop a cancelled job's sent evaluations: revoke their messages (a worker discards
-        them unstarted) and kill the worker processes running them (`terminate`, SIGKILL)."""
+    @property
+    def last_progress(self) -> float:
+        """When an evaluation of a job driven here last finished (monotonic clock)."""
         with self._lock:
-            ids = self._task_ids.get((job_id, generation), {})
-            task_ids = sorted({ids[i] for i in indices if i in ids})
-            # every candidate those tasks carry (a batch's finished ones are resolved already)
-            dropped = sum(1 for t in ids.values() if t in task_ids)
-        if not task_ids:
-            return
-        try:
-            self.app.control.revoke(task_ids, terminate=True, signal="SIGKILL")
-            self.revoked += dropped
-            log.info("job %s: revoked %d evaluations (%d tasks) of generation %d", job_id,
-                     dropped, len(task_ids), generation)
-        except self._errors as err:  # the claims skip them anyway (the job is terminal)
-            log.warning("job %s: could not revoke its evaluations: %s", job_id, err)
+            return self._last_progress
 
     def evaluate(self, repo, job_id, generation, population, check, cut_margin=None):
         """Send the unresolved candidates, at most `dispatch_window` unresolved at a time (so
         jobs share the queue fairly), and wait for the store to hold all their results.
 
-        Lost messages are sent again (idempotent tasks) in two cases: (1) stall: no evaluation
-        of any job driven here finished for `stall_timeout` s (so workers are idle or gone while
-        this generation is unresolved: the queue lost its messages, e.g. a broker restart
-        without persistence, or a worker died with them); (2) overdue: a candidate is unresolved
-        `visibility_timeout + eval_time_limit` s after it was sent, by which time Redis would
-        have re-delivered an unacknowledged message anyway. On cancel the sent evaluations are
-        revoked (`_revoke`) before the interrupt propagates.
+        Sending (`GenerationDispatch`): lost messages are sent again (idempotent tasks) in two
+        cases: (1) stall: no evaluation of any job driven here finished for `stall_timeout` s
+        (so workers are idle or gone while this generation is unresolved: the queue lost its
+        messages, e.g. a broker restart without persistence, or a worker died with them);
+        (2) overdue: a candidate is unresolved `visibility_timeout + eval_time_limit` s after
+        it was sent, by which time Redis would have re-delivered an unacknowledged message
+        anyway. On cancel the sent evaluations are revoked before the interrupt propagates.
 
-        Waiting: a notice names a resolved candidate (the worker sends it after the store has
-        the result), so it frees its place in the window at once; the store is read (one count
-        query) when the notices say that every candidate is resolved, and at least every
-        `STORE_READ_S` s. A read that finds a result no notice announced (notices lost, or not
-        sent) turns the rest of the generation to reading the store after every wait, each
-        wait ending after `PollSchedule`'s delay or at the next notice. The driver's checkpoint
-        (cancel flag, lease, shutdown) runs at least every `FALLBACK_POLL_S` s.
+        Waiting (`ResultWait`): a notice names a resolved candidate (the worker sends it after
+        the store has the result), so it frees its place in the window at once; the store is
+        read (one count query) when the notices say that every candidate is resolved, and at
+        least every `STORE_READ_S` s. A read that finds a result no notice announced (notices
+        lost, or not sent) turns the rest of the generation to reading the store after every
+        wait, each wait ending after `PollSchedule`'s delay or at the next notice. The driver's
+        interrupt check (cancel flag, lease, shutdown) runs at least every `FALLBACK_POLL_S` s.
         """
-        rows = repo.evaluations(job_id, generation)
-        unsent = deque(r.index for r in rows if r.status == PENDING)
-        schedule = PollSchedule(time.monotonic(), self.config.poll_interval)
-        window, cap = self.config.dispatch_window, self.batch_cap
-        # the evaluation processes are not known here: the window is sized at about twice
-        # their number (docs/service.md), so batches never leave one of them without a task
-        slots = max(1, window // 2)
-        sent_at: dict[int, float] = {}  # sent, not seen resolved yet
-
-        def top_up() -> None:
-            sizes = plan_batches(len(unsent), window - len(sent_at), window, slots, cap)
-            batches = [[unsent.popleft() for _ in range(n)] for n in sizes]
-            if batches:
-                self._send(job_id, generation, batches, check)
-                now = time.monotonic()
-                for b in batches:
-                    sent_at.update(dict.fromkeys(b, now))
-
+        pending = _pending_indices(repo, job_id, generation)
+        send = GenerationDispatch(self, repo, job_id, generation, sorted(pending), check)
+        wait = ResultWait(self._waiter, job_id, generation, population,
+                          resolved=population - len(pending),
+                          poll_interval=self.config.poll_interval)
         try:
-            top_up()
-            last_send = time.monotonic()
-            resolved = initially = population - len(unsent) - len(sent_at)
-            overdue_after = self.config.visibility_timeout + self.config.eval_time_limit
-            read_store, last_read = True, 0.0
-            trusted = True  # until the store holds a result no notice announced
+            send.start()
             while True:
                 now = time.monotonic()
-                if read_store or now - last_read >= (STORE_READ_S if trusted else 0.0):
-                    last_read = now
+                if wait.store_due(now):
                     counts = repo.evaluation_counts(job_id, generation)
                     if counts.resolved >= population:
-                        if counts.resolved > resolved:
+                        if counts.resolved > wait.resolved:
                             self._progress()
                         return repo.evaluations(job_id, generation)
-                    pending: set[int] | None = None
-                    if counts.resolved > resolved:  # results the notices did not announce
-                        trusted = False  # notices lost or not sent: read after every wait
-                        resolved = counts.resolved
+                    unresolved: set[int] | None = None
+                    if wait.unannounced(counts.resolved):
                         self._progress()
-                        pending = {r.index for r in repo.evaluations(job_id, generation)
-                                   if r.status == PENDING}
-                        for i in [i for i in sent_at if i not in pending]:
-                            del sent_at[i]
-                        unsent = deque(i for i in unsent if i in pending)
-                        top_up()
-                    with self._lock:
-                        quiet = now - max(self._last_progress, last_send)
-                    overdue = [i for i, t in sent_at.items() if now - t > overdue_after]
-                    if quiet > self.config.stall_timeout or overdue:
-                        if pending is None:
-                            pending = {r.index for r in repo.evaluations(job_id, generation)
-                                       if r.status == PENDING}
-                        again = sorted(set(sent_at).intersection(pending) if not overdue
-                                       else pending.intersection(overdue))
-                        if again:
-                            log.warning(
-                                "job %s generation %d: %s; sending %d unresolved evaluations "
-                                "again", job_id, generation,
-                                f"no evaluation finished for {quiet:.0f} s" if not overdue
-                                else f"{len(overdue)} overdue", len(again))
-                            self._send(job_id, generation, [[i] for i in again], check)
-                            self.resent += len(again)
-                        last_send = time.monotonic()
-                        sent_at.update(dict.fromkeys(again, last_send))
-                        for i in [i for i in sent_at if i not in pending]:
-                            del sent_at[i]
+                        unresolved = send.forget_resolved()
+                    send.resend_lost(now, self.last_progress, unresolved)
                 check()
-                wait = schedule.delay(time.monotonic(), resolved - initially,
-                                      population - resolved)
-                notes = self._waiter.wait(job_id, FALLBACK_POLL_S if trusted else wait)
-                if notes is None:  # no notices here: poll the store
-                    time.sleep(wait)
-                    read_store = True
+                announced = wait.next()
+                if announced is None:  # no notices here: the store is read next
                     continue
-                done = [i for g, i in notes if g == generation and i in sent_at]
-                for i in done:
-                    del sent_at[i]
-                if done:
-                    resolved += len(done)
+                if done := send.announced(announced):
+                    wait.resolved += done
                     self._progress()
-                    top_up()
-                read_store = not trusted or (not sent_at and not unsent)
+                    send.top_up()
+                wait.after_notices(outstanding=send.outstanding)
         except JobCancelledError:
-            self._revoke(job_id, generation, list(sent_at))
+            send.revoke()
             raise
         finally:
-            with self._lock:
-                self._task_ids.pop((job_id, generation), None)
             self._waiter.discard(job_id)
 
     def stats(self):
         return {"sent": self.sent, "tasks": self.tasks, "resent": self.resent,
                 "revoked": self.revoked}
+
+
+def _pending_indices(repo: Repository, job_id: str, generation: int) -> set[int]:
+    """The indices of the generation's evaluations still pending in the store."""
+    return {r.index for r in repo.evaluations(job_id, generation) if r.status == PENDING}
+
+
+class GenerationDispatch:
+    """What one generation of a `CeleryExecutor` has sent: the dispatch window (at most
+    `dispatch_window` candidates sent and unresolved, in tasks of `plan_batches`), the
+    re-sends of lost messages, and the revoke of what is out when the job is cancelled."""
+
+    def __init__(self, executor: CeleryExecutor, repo: Repository, job_id: str,
+                 generation: int, pending: Sequence[int], check: InterruptCheck) -> None:
+        config = executor.config
+        self.executor, self.repo, self.job_id, self.generation, self.check = (
+            executor, repo, job_id, generation, check)
+        self.window, self.cap = config.dispatch_window, executor.batch_cap
+        # the evaluation processes are not known here: the window is sized at about twice
+        # their number (docs/service.md), so batches never leave one of them without a task
+        self.slots = max(1, self.window // 2)
+        self.overdue_after = config.visibility_timeout + config.eval_time_limit
+        self.stall_timeout = config.stall_timeout
+        self.unsent = deque(pending)
+        self.sent_at: dict[int, float] = {}  # sent, not seen resolved yet
+        #: Celery task id of each index sent: what a cancel revokes.
+        self.task_ids: dict[int, str] = {}
+        self.last_send = time.monotonic()
+
+    @property
+    def outstanding(self) -> bool:
+        """Whether a candidate is still out or not sent yet."""
+        return bool(self.sent_at or self.unsent)
+
+    def start(self) -> None:
+        """Fill the window."""
+        self.top_up()
+        self.last_send = time.monotonic()
+
+    def top_up(self) -> None:
+        """Send what the window has room for."""
+        sizes = plan_batches(len(self.unsent), self.window - len(self.sent_at), self.window,
+                             self.slots, self.cap)
+        batches = [[self.unsent.popleft() for _ in range(n)] for n in sizes]
+        if batches:
+            self._send(batches)
+            now = time.monotonic()
+            for b in batches:
+                self.sent_at.update(dict.fromkeys(b, now))
+
+    def _send(self, batches: list[list[int]]) -> None:
+        self.task_ids.update(self.executor._send(self.job_id, self.generation, batches,
+                                                 self.check))
+
+    def announced(self, indices: Sequence[int]) -> int:
+        """Free the places of the candidates whose results were announced; how many of them
+        were out."""
+        done = [i for i in dict.fromkeys(indices) if i in self.sent_at]
+        for i in done:
+            del self.sent_at[i]
+        return len(done)
+
+    def unresolved(self) -> set[int]:
+        """The generation's candidates the store still has pending."""
+        return _pending_indices(self.repo, self.job_id, self.generation)
+
+    def forget_resolved(self) -> set[int]:
+        """Keep only the candidates the store has unresolved, fill the window; returns them."""
+        unresolved = self.unresolved()
+        for i in [i for i in self.sent_at if i not in unresolved]:
+            del self.sent_at[i]
+        self.unsent = deque(i for i in self.unsent if i in unresolved)
+        self.top_up()
+        return unresolved
+
+    def resend_lost(self, now: float, last_progress: float,
+                    unresolved: set[int] | None = None) -> None:
+        """Send again what looks lost: every candidate out once nothing finished for
+        `stall_timeout` s (since `last_progress` or the last send), else the overdue ones.
+        `unresolved`: the store's pending candidates if just read (else read here if needed)."""
+        quiet = now - max(last_progress, self.last_send)
+        overdue = [i for i, t in self.sent_at.items() if now - t > self.overdue_after]
+        if quiet <= self.stall_timeout and not overdue:
+            return
+        still = self.unresolved() if unresolved is None else unresolved
+        again = sorted(set(self.sent_at).intersection(still) if not overdue
+                       else still.intersection(overdue))
+        if again:
+            log.warning("job %s generation %d: %s; sending %d unresolved evaluations again",
+                        self.job_id, self.generation,
+                        f"no evaluation finished for {quiet:.0f} s" if not overdue
+                        else f"{len(overdue)} overdue", len(again))
+            self._send([[i] for i in again])
+            self.executor.resent += len(again)
+        self.last_send = time.monotonic()
+        self.sent_at.update(dict.fromkeys(again, self.last_send))
+        for i in [i for i in self.sent_at if i not in still]:
+            del self.sent_at[i]
+
+    def revoke(self) -> None:
+        """Drop a cancelled job's sent evaluations: revoke their messages (a worker discards
+        them unstarted) and kill the worker processes running them (`terminate`, SIGKILL)."""
+        ids = self.task_ids
+        task_ids = sorted({ids[i] for i in self.sent_at if i in ids})
+        if not task_ids:
+            return
+        # every candidate those tasks carry (a batch's finished ones are resolved already)
+        dropped = sum(1 for t in ids.values() if t in task_ids)
+        executor = self.executor
+        try:
+            executor.app.control.revoke(task_ids, terminate=True, signal="SIGKILL")
+            executor.revoked += dropped
+            log.info("job %s: revoked %d evaluations (%d tasks) of generation %d", self.job_id,
+                     dropped, len(task_ids), self.generation)
+        except executor._errors as err:  # the claims skip them anyway (the job is terminal)
+            log.warning("job %s: could not revoke its evaluations: %s", self.job_id, err)
+
+
+class ResultWait:
+    """How a `CeleryExecutor` waits for one generation's results: on the job's result notices
+    while they are trusted (the store read at least every `STORE_READ_S` s, and when the
+    notices say all is resolved), else reading the store after every wait (`PollSchedule`)."""
+
+    def __init__(self, notices: NoticeWaiter, job_id: str, generation: int, population: int,
+                 *, resolved: int, poll_interval: float) -> None:
+        self.notices, self.job_id, self.generation = notices, job_id, generation
+        self.population = population
+        self.schedule = PollSchedule(time.monotonic(), poll_interval)
+        #: Results known: in the store before this wait, announced, or counted in the store.
+        self.resolved = self.initially = resolved
+        self.read_store, self.last_read = True, 0.0
+        self.trusted = True  # until the store holds a result no notice announced
+
+    def store_due(self, now: float) -> bool:
+        """Whether the store is to be read now (then it counts as read)."""
+        if self.read_store or now - self.last_read >= (STORE_READ_S if self.trusted else 0.0):
+            self.last_read = now
+            return True
+        return False
+
+    def unannounced(self, resolved: int) -> bool:
+        """Whether the store's count `resolved` holds results no notice announced: then the
+        notices are not trusted for the rest of the generation."""
+        if resolved <= self.resolved:
+            return False
+        self.trusted = False
+        self.resolved = resolved
+        return True
+
+    def next(self) -> list[int] | None:
+        """Wait for notices: the indices of this generation announced ([] on a timeout), or
+        None if there are no notices here (after sleeping the poll schedule's delay)."""
+        wait = self.schedule.delay(time.monotonic(), self.resolved - self.initially,
+                                   self.population - self.resolved)
+        notes = self.notices.wait(self.job_id, FALLBACK_POLL_S if self.trusted else wait)
+        if notes is None:
+            time.sleep(wait)
+            self.read_store = True
+            return None
+        return [i for g, i in notes if g == self.generation]
+
+    def after_notices(self, *, outstanding: bool) -> None:
+        """Read the store next if the notices are not trusted or announced the last result."""
+        self.read_store = not self.trusted or not outstanding
 
 
 def make_generation_executor(settings: Settings) -> GenerationExecutor:

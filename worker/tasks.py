@@ -1,12 +1,12 @@
 """Celery tasks: `evaluate_candidates(job_id, generation, indices)` (what the driver sends: a
 few candidates of one generation per task, see worker.executors.batch_sizes). Ids in, small dicts
 out; the parameters come from, and the results go to, the
-store (see worker.evaluation), each candidate claimed and stored on its own, so a worker killed
+store (see worker.candidates), each candidate claimed and stored on its own, so a worker killed
 mid-task loses only the candidate it was running: the re-delivered message skips the ones
 already stored. After each stored result the job's driver is notified (worker.notify).
 
 Each worker pool process opens its own repository lazily (after the fork), reads a job's spec
-hash once (worker.evaluation.JobSpecs) and keeps the typed spec and one simulator per spec in
+hash once (worker.candidates.JobSpecs) and keeps the typed spec and one simulator per spec in
 the process's one spec cache (optim.objective.SPECS), so consecutive candidates of a job reuse
 the ODE world and the spec is parsed once per process.
 
@@ -33,8 +33,8 @@ from typing import Any
 from celery.signals import task_unknown, worker_process_init
 
 from cmrt.settings import get_settings
+from worker.candidates import JobSpecs, open_worker_repository, run_candidates
 from worker.celery_app import TASK_EVALUATE_BATCH, app
-from worker.evaluation import JobSpecs, open_worker_repository, run_candidates
 from worker.notify import Notifier
 
 log = logging.getLogger(__name__)
@@ -75,7 +75,7 @@ def _fresh_process(**_: Any) -> None:  # never reuse the parent's connections af
 
 
 def _worker_name(task: Any) -> str:
-    node = getattr(task.request, "hostname", None) or f"pid{os.getpid()}"
+    node = task.request.hostname or f"pid{os.getpid()}"
     return f"{node}/{os.getpid()}"
 
 

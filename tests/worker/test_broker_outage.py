@@ -16,8 +16,8 @@ import uuid
 import pytest
 
 from cmrt.settings import Settings
+from worker.candidates import JobFailedError
 from worker.celery_app import make_celery
-from worker.evaluation import JobFailedError
 from worker.executors import CeleryExecutor
 
 pytestmark = pytest.mark.redis

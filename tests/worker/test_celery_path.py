@@ -7,7 +7,13 @@ import pytest
 
 from cmrt.settings import Settings
 from worker.celery_app import TASK_EVALUATE_BATCH, make_celery
-from worker.executors import MIN_POLL_INTERVAL, CeleryExecutor, PollSchedule, plan_batches
+from worker.executors import (
+    MIN_POLL_INTERVAL,
+    CeleryExecutor,
+    GenerationDispatch,
+    PollSchedule,
+    plan_batches,
+)
 
 
 @pytest.fixture
@@ -72,6 +78,19 @@ def test_batches_shrink_to_one_candidate_per_task_at_the_end_of_a_generation() -
     assert plan_batches(32, room=8, window=8, slots=2, cap=8) == [4, 4]
     assert plan_batches(32, room=4, window=4, slots=4, cap=8) == [1, 1, 1, 1]
     assert plan_batches(5, room=4, window=4, slots=2, cap=1) == [1, 1, 1, 1]
+
+
+def test_a_result_announced_twice_frees_its_place_once(config) -> None:
+    # a re-sent candidate is announced by both of its tasks (the second finds it stored), and
+    # both notices may arrive in one read
+    app = _RecordingApp()
+    send = GenerationDispatch(CeleryExecutor(config, app), None, "job-1", 0, [0, 1, 2, 3],
+                              lambda: None)
+    send.start()
+    assert sorted(send.sent_at) == [0, 1, 2, 3] and not send.unsent
+    assert send.announced([2, 2, 7]) == 1  # 7: not out (resolved before, or another's)
+    assert sorted(send.sent_at) == [0, 1, 3] and send.outstanding
+    assert send.announced([0, 1, 3]) == 3 and not send.outstanding
 
 
 def test_batch_cap_keeps_a_task_inside_the_visibility_timeout(config) -> None:

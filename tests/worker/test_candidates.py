@@ -1,4 +1,4 @@
-"""worker.evaluation.run_candidate (the body of the Celery task) against the real store, with a
+"""worker.candidates.run_candidate (the body of the Celery task) against the real store, with a
 synthetic objective: claim, skip, fail after max_attempts, evaluate, store (first result wins)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from synthetic import Sphere
 
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
 from store.repository import SqlRepository
-from worker.evaluation import JobSpecs, run_candidate
+from worker.candidates import JobSpecs, run_candidate
 
 SPEC = {
     "name": "w_bend", "family": "bend",
@@ -137,7 +137,7 @@ def test_store_calls_survive_a_lost_database_connection(repo) -> None:
     """A worker's repository does not ping before each use of a pooled connection: a
     connection the server has dropped fails its next statement, and the call is tried again on a
     new one."""
-    from worker.evaluation import open_worker_repository
+    from worker.candidates import open_worker_repository
 
     worker_repo = open_worker_repository(repo.engine.url.render_as_string(hide_password=False))
     engine = worker_repo.engine
@@ -164,9 +164,9 @@ def test_store_calls_survive_a_lost_database_connection(repo) -> None:
 def test_with_reconnect_retries_only_transient_database_errors(monkeypatch) -> None:
     from sqlalchemy.exc import IntegrityError, OperationalError
 
-    from worker import evaluation
+    from worker import candidates
 
-    monkeypatch.setattr(evaluation.time, "sleep", lambda s: None)
+    monkeypatch.setattr(candidates.time, "sleep", lambda s: None)
     calls = []
 
     def flaky(x, fail=2, exc=OperationalError):
@@ -175,13 +175,13 @@ def test_with_reconnect_retries_only_transient_database_errors(monkeypatch) -> N
             raise exc("SELECT 1", {}, RuntimeError("server closed the connection"))
         return x * 2
 
-    assert evaluation.with_reconnect(flaky, 21) == 42 and len(calls) == 3
+    assert candidates.with_reconnect(flaky, 21) == 42 and len(calls) == 3
     calls.clear()
     with pytest.raises(IntegrityError):  # not transient: raised at once
-        evaluation.with_reconnect(flaky, 1, exc=IntegrityError)
+        candidates.with_reconnect(flaky, 1, exc=IntegrityError)
     assert len(calls) == 1
     calls.clear()
-    monkeypatch.setattr(evaluation, "RECONNECT_SECONDS", 0.0)
+    monkeypatch.setattr(candidates, "RECONNECT_SECONDS", 0.0)
     with pytest.raises(OperationalError):  # down for longer than RECONNECT_SECONDS
-        evaluation.with_reconnect(flaky, 1)
+        candidates.with_reconnect(flaky, 1)
     assert len(calls) == 1

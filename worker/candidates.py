@@ -217,73 +217,99 @@ def run_candidates(
     (stored here, or found resolved already): the driver's wake-up (worker.notify). The job's
     typed spec and objective come from `cache` (the store read once per process and job, the
     spec parsed at most once per process)."""
-    results: dict[int, dict[str, Any]] = {}
-    node = worker_name or socket.gethostname()
-    loaded: list[tuple[TaskSpec, Any]] = []
+    run = CandidateRun(repo, job_id, generation, max_attempts=max_attempts, cache=cache,
+                       worker_name=worker_name or socket.gethostname(), notify=notify)
+    if pool_run is None:
+        run.evaluate_here(indices)
+    else:
+        run.evaluate_in_pool(indices, pool_run)
+    return [run.results[i] for i in indices]
 
-    def objective() -> tuple[TaskSpec, Any]:
-        if not loaded:
-            loaded.append(with_reconnect(cache.get, repo, job_id))
-        return loaded[0]
 
-    def claim(index: int) -> np.ndarray | None:
+class CandidateRun:
+    """The candidates of one `run_candidates` call: `claim` (an attempt counted, or the reason
+    to skip), evaluation here or in a pool, `record` (the result stored, first one wins, and
+    the driver notified). `results` holds each candidate's small JSON dict."""
+
+    def __init__(self, repo: Repository, job_id: str, generation: int, *, max_attempts: int,
+                 cache: JobSpecs, worker_name: str,
+                 notify: Callable[[str, int, int], Any] | None) -> None:
+        self.repo, self.job_id, self.generation = repo, job_id, generation
+        self.max_attempts, self.cache = max_attempts, cache
+        self.worker_name, self.notify = worker_name, notify
+        self.results: dict[int, dict[str, Any]] = {}
+        self._loaded: tuple[TaskSpec, Any] | None = None
+
+    def objective(self) -> tuple[TaskSpec, Any]:
+        """The job's typed spec and objective (read once per call, from the process's cache)."""
+        if self._loaded is None:
+            self._loaded = with_reconnect(self.cache.get, self.repo, self.job_id)
+        return self._loaded
+
+    def claim(self, index: int) -> np.ndarray | None:
         """The candidate's params once claimed, or None (resolved: see `results`)."""
+        job_id, generation = self.job_id, self.generation
         try:
-            c = with_reconnect(repo.claim_evaluation, job_id, generation, index)
+            c = with_reconnect(self.repo.claim_evaluation, job_id, generation, index)
         except NotFound:
-            results[index] = {"status": "missing"}
+            self.results[index] = {"status": "missing"}
             return None
         if c.status != PENDING:
-            results[index] = {"status": c.status, "skipped": True}
-        elif c.attempts > max_attempts:
+            self.results[index] = {"status": c.status, "skipped": True}
+        elif c.attempts > self.max_attempts:
             msg = attempts_exhausted_message(generation, index, c.attempts - 1)
-            with_reconnect(repo.fail_evaluation, job_id, generation, index, msg)
+            with_reconnect(self.repo.fail_evaluation, job_id, generation, index, msg)
             log.error("job %s: %s", job_id, msg)
-            results[index] = {"status": "failed", "attempts": c.attempts}
+            self.results[index] = {"status": "failed", "attempts": c.attempts}
         elif c.job_terminal:  # cancelled or failed meanwhile: don't spend CPU on it
-            results[index] = {"status": "skipped", "job_status": c.job_status}
+            self.results[index] = {"status": "skipped", "job_status": c.job_status}
             return None
         else:
-            results[index] = {"status": "claimed", "attempts": c.attempts}
+            self.results[index] = {"status": "claimed", "attempts": c.attempts}
             return np.asarray(c.params, dtype=float)
-        if notify is not None:
-            notify(job_id, generation, index)
+        if self.notify is not None:
+            self.notify(job_id, generation, index)
         return None
 
-    def record(index: int, out: EvalOutcome | EvaluationError) -> None:
+    def record(self, index: int, out: EvalOutcome | EvaluationError) -> None:
+        """Store the candidate's outcome (a lost process: nothing stored, the attempt counts)."""
+        job_id, generation = self.job_id, self.generation
         if isinstance(out, EvaluationError):  # its process died: the attempt counts
             log.warning("job %s generation %d candidate %d: %s", job_id, generation, index, out)
-            results[index] = {"status": "lost", "error": str(out)}
+            self.results[index] = {"status": "lost", "error": str(out)}
             return
-        changed = with_reconnect(repo.store_result, job_id, generation, index,
-                                 **outcome_fields(out, node))
-        if notify is not None:
-            notify(job_id, generation, index)
-        results[index] = {"status": DONE if changed else "duplicate",
-                          "objective": float(out.objective),
-                          "attempts": results[index]["attempts"], "changed": changed}
+        changed = with_reconnect(self.repo.store_result, job_id, generation, index,
+                                 **outcome_fields(out, self.worker_name))
+        if self.notify is not None:
+            self.notify(job_id, generation, index)
+        self.results[index] = {"status": DONE if changed else "duplicate",
+                               "objective": float(out.objective),
+                               "attempts": self.results[index]["attempts"], "changed": changed}
 
-    if pool_run is None:
+    def evaluate_here(self, indices: list[int]) -> None:
+        """Each candidate claimed just before it runs in this process."""
         for index in indices:
-            params = claim(index)
+            params = self.claim(index)
             if params is None:
                 continue
-            spec_, fn = objective()
-            faults.maybe_crash(spec_.name, generation, index)
-            faults.maybe_delay(spec_.name, generation, index)
-            record(index, evaluate_one(fn, params))
-    else:
-        todo = [(i, p) for i in indices if (p := claim(i)) is not None]
-        if todo:
-            try:
-                pool_run(objective()[1], [p for _, p in todo],
-                         lambda pos, out: record(todo[pos][0], out))
-            except DriverShutdownError:  # a graceful stop is not a crash: un-count them
-                for i, _ in todo:
-                    if results[i]["status"] == "claimed":
-                        repo.release_attempt(job_id, generation, i)
-                raise
-    return [results[i] for i in indices]
+            spec_, fn = self.objective()
+            faults.maybe_crash(spec_.name, self.generation, index)
+            faults.maybe_delay(spec_.name, self.generation, index)
+            self.record(index, evaluate_one(fn, params))
+
+    def evaluate_in_pool(self, indices: list[int], pool_run: PoolRun) -> None:
+        """Every candidate claimed, then the claimed ones evaluated together by `pool_run`."""
+        todo = [(i, p) for i in indices if (p := self.claim(i)) is not None]
+        if not todo:
+            return
+        try:
+            pool_run(self.objective()[1], [p for _, p in todo],
+                     lambda pos, out: self.record(todo[pos][0], out))
+        except DriverShutdownError:  # a graceful stop is not a crash: un-count them
+            for i, _ in todo:
+                if self.results[i]["status"] == "claimed":
+                    self.repo.release_attempt(self.job_id, self.generation, i)
+            raise
 
 
 def run_candidate(
