@@ -14,7 +14,7 @@ For each worker count W and evaluation time S, on a fresh database and broker:
     out, as docs/service.md asks of a window "about twice the worker processes" per job);
   * W worker processes: ceil(W / --per-instance) instances of the product's worker command
     (`cmrt worker`, prefork, `--concurrency` up to --per-instance: one instance stands for one
-    host), whose objective is `optim.synthetic.NoisyFlat(sleep=S)`, set through the product's
+    host), whose objective is `SleepingObjective(S)` (below), set through the product's
     own objective hook (`worker.candidates.JobSpecs(factory)`, the one the local pool's
     `objective_factory` fills) before Celery forks: the worker runs every store call, notice
     and Celery step of a real evaluation, only the simulation is a sleep;
@@ -44,16 +44,21 @@ import glob
 import json
 import math
 import os
+import random
 import shutil
 import signal
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bench.celery_throughput import _cpu  # the same CPU account
+from optim.outcome import EvalOutcome
 
 ROOT = Path(__file__).resolve().parents[1]
 #: PostgreSQL connections kept free beside the workers' (driver, scanner, this script).
@@ -271,14 +276,26 @@ def measure(workers: int, sleep: float, args: argparse.Namespace, pg: PrivatePos
         redis.close()
 
 
+@dataclass(frozen=True)
+class SleepingObjective:
+    """An evaluation of `sleep` s of wall time and no CPU that never converges: 1 plus a
+    pseudo-random share below 0.01, the same for the same candidate."""
+
+    sleep: float
+
+    def __call__(self, x: Any) -> EvalOutcome:
+        time.sleep(self.sleep)
+        noise = random.Random(np.asarray(x, dtype=np.float64).tobytes()).random()
+        return EvalOutcome(objective=1.0 + 0.01 * noise)
+
+
 def run_worker(args: argparse.Namespace) -> int:
     """`cmrt worker` whose objective sleeps (see the module docstring)."""
     from cli.main import main as cmrt_main
-    from optim.synthetic import NoisyFlat
     from worker import tasks
     from worker.candidates import JobSpecs
 
-    objective = NoisyFlat(sleep=args.sleep)
+    objective = SleepingObjective(args.sleep)
     tasks._cache = JobSpecs(lambda _spec: objective)  # before Celery forks its pool
     if not args.threads:
         return cmrt_main(["worker", "--concurrency", str(args.concurrency), "--hostname",

@@ -160,16 +160,19 @@ class Rollout:
 
 
 class _Clip:
-    """One run of a `Rollout`. Its loop (`steps`) reads as dm_control's: observe (`_observe`:
-    the state, the model terms, the body's own fall rules), act (`_act`: the active
-    controller's torques applied; its fall rule and the hand-over to the fall controller),
-    step the physics (`_step_physics`: the task's events, contacts, ODE, contact feedback),
-    record (`_record`: the CP error, and the traces and frames when on: `Recorder`) and check
-    the task (`_check_task`: a failed interaction releases the CMRT). Then the scores
-    (`result`, or `cut` for a run stopped by its bound).
+    """One run of a `Rollout`. Its loop (`steps`) reads as dm_control's: observe (the state,
+    the model terms, the body's own fall rules), act (the active controller's torques applied;
+    its fall rule and the hand-over to the fall controller), step the physics (the task's
+    events, contacts, ODE, contact feedback), record (the CP error, and the traces and frames
+    when on: `Recorder`) and check the task (a failed interaction releases the CMRT). Then the
+    scores (`result`, or `cut` for a run stopped by its bound).
 
-    Everything a step reads that does not change during the run (bound methods, the model's
-    arrays, limits) is looked up once here, not at every step."""
+    Each phase is a function made once per run by its builder (`_observer`, `_actor`,
+    `_stepper`, `_recorder`, `_task_checker`), which looks up what the phase reads that does
+    not change during the run (bound methods, the model's arrays, limits): in the function
+    they are closure variables, not attribute look-ups at every step. What passes from one
+    phase to the next within a step is the support centre and this step's held-step result,
+    observation and support edges (`_held`, `_obs`, `_support`)."""
 
     def __init__(self, rollout: Rollout, cmrt: Cmrt | None, traces: bool):
         self.rollout = rollout
@@ -198,34 +201,11 @@ class _Clip:
         # (float sums of squares and sqrt are monotone, task penalties are >= 0), and a later
         # fall scores at least F0 = sqrt(steps) x support length.
         self.f0 = math.sqrt(rollout.steps) * rollout.support_length
-        self._hoist(rollout)
-
-    def _hoist(self, rollout: Rollout) -> None:
-        """What every step reads: the model's output arrays (`PackedModel`: the model terms
-        are written into them every step, so the Observation's arrays hold this step's values
-        only, as q and qd do), the physics' and controllers' bound methods, the limits."""
-        phys, balance, ch = self.phys, self.balance, rollout.character
+        # The model terms are written into the PackedModel's arrays every step, so the
+        # Observation's arrays hold this step's values only, as q and qd (read_state) do.
         (self._M, self._h, self._c, self._cd, self._A_L, self._A_H, self._Js, self._pts,
          self._sole_x) = rollout.pack.arrays()
-        self._pargs = rollout.pack.args()
-        self._q, self._qd = phys.q, phys.qd  # the arrays `read_state` writes
-        self._foot_of_point = np.repeat(ch.feet, 2).tolist()
-        self._n_feet = len(ch.feet)
-        self._cm_floor = FALL_CM_FRACTION * rollout.cm0[1]
-        self._events = self.task.events
-        self._has_props = bool(phys.props)
-        self._read_state = phys.read_state
-        self._apply_torques, self._add_clamped = phys.apply_torques, phys.add_clamped_torques
-        self._make_contacts, self._world_step = phys.make_contacts, phys.step
-        self._contact_forces, self._clear_contacts = phys.contact_forces, phys.clear_contacts
-        # Steps between QP solves: the model terms, the held accelerations' inverse dynamics
-        # and the torque clamp in one compiled call (`step_model_held`), when the balance
-        # controller offers them (`Controller.held_torque_step`); the same torques and
-        # judgement as its `act`, bit for bit.
-        self._held_step, self._held_act = balance.held_torque_step, balance.held_act
-        self._mu = balance.mu
-        self._neg_limit, self._limit = phys.torque_bounds
-        self._tau_held = np.empty(len(self._limit))
+        self._tau_held = np.empty(len(phys.torque_bounds[1]))  # a held step's clamped torques
         self._held: tuple[int, float] | None = None  # this step's (wrench code, top) if held
         self._obs: Observation | None = None  # this step's observation if not held
         self._support = (0.0, 0.0)  # this step's support edges (stance feet)
@@ -233,11 +213,11 @@ class _Clip:
     def steps(self, stop_above: Callable[[], float] | None) -> bool:
         """Simulate the clip's steps: observe, act, step the physics, record, check the task.
         True when `stop_above` cut the run."""
-        observe, act, step_physics, record = (self._observe, self._act, self._step_physics,
-                                              self._record)
-        check_task = self._check_task if self.releasable is not None else None
+        observe, act, step_physics, record = (self._observer(), self._actor(), self._stepper(),
+                                              self._recorder())
+        check_task = self._task_checker() if self.releasable is not None else None
         cut_due = self._cut_rule(stop_above) if stop_above is not None else None
-        rec = self.rec
+        rec, c = self.rec, self._c
         n = self.rollout.steps
         for k in range(n):
             t = k * DT
@@ -248,7 +228,7 @@ class _Clip:
             if s is None or not act(t, s):  # a fall ends the clip
                 break
             if rec is not None and k % FRAME_EVERY == 0:  # the state before this step
-                rec.frame(t, self._c, self.c_ref, self._support)
+                rec.frame(t, c, self.c_ref, self._support)
             fy, cop = step_physics(t)
             record(k, t + DT, fy, cop, s)
             if check_task is not None:
@@ -268,31 +248,44 @@ class _Clip:
 
         return due
 
-    def _observe(self, k: int, t: float) -> float | None:
+    def _observer(self) -> Callable[[int, float], float | None]:
         """Observe at t: the state read from ODE (checked for divergence every
-        DIVERGENCE_CHECK_STEPS steps) and the model terms; on a held step also its clamped
-        torques (`step_model_held`). The support centre (of the stance feet), or None when
-        the body's own fall rules (a body on the ground, the CM dropped) end the clip."""
-        q, qd = self._read_state()
-        if k % DIVERGENCE_CHECK_STEPS == 0:
-            self._check_divergence(qd, t)
-        if self.active is self.balance and self._held_step():
-            lo, hi, clearance, code, _cop, top = step_model_held(
-                q, qd, *self._pargs, self.balance.qdd, self._mu, self._neg_limit, self._limit,
-                self._tau_held)
-            self._held = (code, top)
-            self._support = support = (lo, hi)
-        else:
-            lo, hi, clearance = step_model_packed(q, qd, *self._pargs)
-            self._held = None
-            self._obs = obs = self._observation((lo, hi), self.active.stance)
-            self._support = support = obs.support
-        s = 0.5 * (support[0] + support[1])
-        if clearance < 0.0 or self._c[1] < self._cm_floor:
-            if self.fall_time is None:
-                self._fall(t, "body_contact" if clearance < 0.0 else "cm_drop", s)
-            return None
-        return s
+        DIVERGENCE_CHECK_STEPS steps) and the model terms (`step_model_packed`); on a held
+        step, when the balance controller offers one (`Controller.held_torque_step`), also
+        the held accelerations' inverse dynamics and clamped torques in the same compiled call
+        (`step_model_held`: the torques and judgement of its `act`, bit for bit). Returns the
+        support centre (of the stance feet), or None when the body's own fall rules (a body
+        on the ground, the CM dropped) end the clip."""
+        clip, phys, balance = self, self.phys, self.balance
+        read_state, held_step = phys.read_state, balance.held_torque_step
+        pargs = self.rollout.pack.args()
+        mu, (neg_limit, limit), tau_held = balance.mu, phys.torque_bounds, self._tau_held
+        c, cm_floor = self._c, FALL_CM_FRACTION * self.rollout.cm0[1]
+        observation, check_divergence, fall = (self._observation, self._check_divergence,
+                                               self._fall)
+
+        def observe(k: int, t: float) -> float | None:
+            q, qd = read_state()
+            if k % DIVERGENCE_CHECK_STEPS == 0:
+                check_divergence(qd, t)
+            if clip.active is balance and held_step():
+                lo, hi, clearance, code, _cop, top = step_model_held(
+                    q, qd, *pargs, balance.qdd, mu, neg_limit, limit, tau_held)
+                clip._held = (code, top)
+                clip._support = support = (lo, hi)
+            else:
+                lo, hi, clearance = step_model_packed(q, qd, *pargs)
+                clip._held = None
+                clip._obs = obs = observation((lo, hi), clip.active.stance)
+                clip._support = support = obs.support
+            s = 0.5 * (support[0] + support[1])
+            if clearance < 0.0 or c[1] < cm_floor:
+                if clip.fall_time is None:
+                    fall(t, "body_contact" if clearance < 0.0 else "cm_drop", s)
+                return None
+            return s
+
+        return observe
 
     def _observation(self, support: tuple[float, float],
                      stance: tuple[int, ...] | None) -> Observation:
@@ -300,76 +293,103 @@ class _Clip:
         ones stay the model's)."""
         Js, pts, sole = self._Js, self._pts, self._sole_x
         if stance is not None:
-            Js, pts, sole, support = stance_terms(Js, pts, sole, support, stance, self._n_feet)
-        return Observation(self._q, self._qd, self._M, self._h, self._c, self._cd, self._A_L,
-                           self._A_H, Js, pts, sole, support, stance)
+            Js, pts, sole, support = stance_terms(Js, pts, sole, support, stance,
+                                                  len(self.rollout.character.feet))
+        return Observation(self.phys.q, self.phys.qd, self._M, self._h, self._c, self._cd,
+                           self._A_L, self._A_H, Js, pts, sole, support, stance)
 
-    def _act(self, t: float, s: float) -> bool:
-        """Act at t: the active controller's torques (a held step's from `_observe`), applied.
-        When the balance controller loses balance, the fall is recorded and, with traces on,
-        the fall controller takes over (the fall is shown); without traces the clip ends there
-        (False)."""
-        held = self._held
-        if held is not None:
-            self._held_act(*held)
-            tau = None  # self._tau_held, clamped
-        else:
-            tau = self.active.act(self._obs, t)
-        if not self.lost:
-            if self.rec is not None:
-                self.c_ref = self.balance.c_ref
-            if self.active.lost is not None:  # the controller's own fall
-                self.lost = True
-                self._fall(t, f"balance_lost:{self.active.lost}", s)
-                if self.rec is None:
-                    return False
-                tau = self._hand_over(t)
-        if tau is None:
-            self._add_clamped(self._tau_held.tolist())
-        else:
-            self._apply_torques(tau)
-        return True
+    def _actor(self) -> Callable[[float, float], bool]:
+        """Act at t: the active controller's torques (a held step's from the observation),
+        applied. When the balance controller loses balance, the fall is recorded and, with
+        traces on, the fall controller takes over (the fall is shown); without traces the
+        clip ends there (False)."""
+        clip, balance, rec, tau_held = self, self.balance, self.rec, self._tau_held
+        held_act = balance.held_act
+        apply_torques, add_clamped = self.phys.apply_torques, self.phys.add_clamped_torques
 
-    def _step_physics(self, t: float) -> tuple[float, float]:
+        def act(t: float, s: float) -> bool:
+            held = clip._held
+            if held is not None:
+                held_act(*held)
+                tau = None  # tau_held, clamped
+            else:
+                tau = clip.active.act(clip._obs, t)
+            if not clip.lost:
+                if rec is not None:
+                    clip.c_ref = balance.c_ref
+                if clip.active.lost is not None:  # the controller's own fall
+                    clip.lost = True
+                    clip._fall(t, f"balance_lost:{clip.active.lost}", s)
+                    if rec is None:
+                        return False
+                    tau = clip._hand_over(t)
+            if tau is None:
+                add_clamped(tau_held.tolist())
+            else:
+                apply_torques(tau)
+            return True
+
+        return act
+
+    def _stepper(self) -> Callable[[float], tuple[float, float]]:
         """Step the physics from t: the last step's contacts dropped, the task's events, the
         feet's ground contacts and the props' collisions, ODE's step, the feet's contact
-        feedback, the task's events after the step (which may read its contacts). The feet's
-        total normal force (N) and CP x."""
-        phys, task, events = self.phys, self.task, self._events
-        self._clear_contacts()
-        if events:
-            task.before_step(phys, t)
-        self._make_contacts(self._pts, self._foot_of_point)
-        if self._has_props:
-            phys.collide_props()
-        self._world_step()
-        fy, _fx, cop = self._contact_forces()
-        if events:
-            task.after_step(phys, t + DT)
-        return fy, cop
+        feedback, the task's events after the step (which may read its contacts). Returns the
+        feet's total normal force (N) and CP x."""
+        phys, task = self.phys, self.task
+        events, has_props, pts = task.events, bool(phys.props), self._pts
+        foot_of_point = np.repeat(self.rollout.character.feet, 2).tolist()
+        clear_contacts, make_contacts, collide_props = (phys.clear_contacts, phys.make_contacts,
+                                                        phys.collide_props)
+        world_step, contact_forces = phys.step, phys.contact_forces
+        before_step, after_step = task.before_step, task.after_step
 
-    def _record(self, k: int, t: float, fy: float, cop: float, s: float) -> None:
+        def step_physics(t: float) -> tuple[float, float]:
+            clear_contacts()
+            if events:
+                before_step(phys, t)
+            make_contacts(pts, foot_of_point)
+            if has_props:
+                collide_props()
+            world_step()
+            fy, _fx, cop = contact_forces()
+            if events:
+                after_step(phys, t + DT)
+            return fy, cop
+
+        return step_physics
+
+    def _recorder(self) -> Callable[[int, float, float, float, float], None]:
         """Record step k, ending at t: its CP error e = cp - s into the objective's sums (NaN
         without ground contact or after balance was lost, and not summed), and the traces when
         on."""
-        e = math.nan
-        if fy > MIN_CONTACT_FORCE and not self.lost:
-            e = cop - s
-            self.sq_sum += e * e
-            if abs(e) > self.max_e:  # max(max_e, |e|) without the builtin's call
-                self.max_e = abs(e)
-            self.contact_steps += 1
-        if self.rec is not None:
-            self.rec.trace(k, t, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, self._c,
-                           self.c_ref, fy)
+        clip, rec, c = self, self.rec, self._c
 
-    def _check_task(self, t: float) -> None:
+        def record(k: int, t: float, fy: float, cop: float, s: float) -> None:
+            e = math.nan
+            if fy > MIN_CONTACT_FORCE and not clip.lost:
+                e = cop - s
+                clip.sq_sum += e * e
+                if abs(e) > clip.max_e:  # max(max_e, |e|) without the builtin's call
+                    clip.max_e = abs(e)
+                clip.contact_steps += 1
+            if rec is not None:
+                rec.trace(k, t, cop if fy > MIN_CONTACT_FORCE else math.nan, s, e, c,
+                          clip.c_ref, fy)
+
+        return record
+
+    def _task_checker(self) -> Callable[[float], None]:
         """Check the task after the step ending at t: an interaction it reports failed while
         the CMRT is held releases the CMRT."""
-        releasable = self.releasable
-        if (releasable.released_at is None and not self.lost
-                and self.task.interaction_failed(self.phys, t)):
-            releasable.release(t)
+        clip, releasable, task, phys = self, self.releasable, self.task, self.phys
+
+        def check_task(t: float) -> None:
+            if (releasable.released_at is None and not clip.lost
+                    and task.interaction_failed(phys, t)):
+                releasable.release(t)
+
+        return check_task
 
     def _check_divergence(self, qd: np.ndarray, t: float) -> None:
         why = self.phys.diverged(qd)

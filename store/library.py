@@ -83,15 +83,10 @@ class LibraryRepository(abc.ABC):
         """
 
     @abc.abstractmethod
-    def find_cmrt_keys(
-        self,
-        family: str,
-        params: Mapping[str, float],
-        *,
-        tolerance: float | Mapping[str, float] | None = None,
-        character: Mapping[str, Any] | None = None,
-        limit: int | None = None,
-    ) -> list[CmrtKey]:
+    def find_cmrt_keys(self, family: str, params: Mapping[str, float], *,
+                       tolerance: float | Mapping[str, float] | None = None,
+                       character: Mapping[str, Any] | None = None,
+                       limit: int | None = None) -> list[CmrtKey]:
         """`find_cmrts`'s CMRTs, in its order, as keys: their summary without curve, spline
         or spec (a list of matches reads no CMRT's JSON beyond its family's keys)."""
 

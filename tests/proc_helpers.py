@@ -6,11 +6,21 @@ import os
 import signal
 import socket
 import subprocess
+from pathlib import Path
 
+#: The checkout: the product's packages, and tests/ beside them.
+ROOT = Path(__file__).resolve().parents[1]
 #: s: how long a process group gets to finish after SIGTERM before it is killed.
 TERM_GRACE_S = 30.0
 #: s: how long the wait after SIGKILL may take.
 KILL_WAIT_S = 10.0
+
+
+def tests_env() -> dict[str, str]:
+    """This environment for a Python child that imports the tests' helpers (`synthetic`): the
+    checkout and tests/ on its path, in pytest's order (the product's `store` before the tests'
+    `store/` folder)."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
 
 
 def stop_group(proc: subprocess.Popen, grace: float = TERM_GRACE_S) -> None:

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from proc_helpers import tests_env
+from synthetic import LineFamily
 
 from optim.executors import PoolExecutor
 from optim.family.checks import family_checks, reconstruction_errors
@@ -24,7 +26,6 @@ from optim.family.plan import MEMBER, PROBES, REDUCED, REFERENCE, plan_runs, rea
 from optim.family.spec import FamilyError, member_spec, parse_family
 from optim.family_run import run_family
 from optim.result import OptimizationResult
-from optim.synthetic import LineFamily
 
 BASE: dict[str, Any] = {
     "name": "fam",
@@ -232,7 +233,7 @@ RESUME_SCRIPT = textwrap.dedent("""
     from optim.executors import PoolExecutor
     from optim.family.spec import parse_family
     from optim.family_run import run_family
-    from optim.synthetic import LineFamily
+    from synthetic import LineFamily
     import json
     fs = parse_family(json.loads(sys.argv[1]))
     with PoolExecutor(2) as pool:
@@ -248,9 +249,8 @@ def test_resume_after_a_killed_run_gives_the_same_family(tmp_path: Path) -> None
             "warm": {"sigma0": 0.05, "window": 3, "max_evaluations": 30}}
     fs = parse_family(data)
     killed = tmp_path / "killed"
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     proc = subprocess.Popen([sys.executable, "-c", RESUME_SCRIPT, json.dumps(data),
-                             str(killed), "0.01"], env=env, start_new_session=True)
+                             str(killed), "0.01"], env=tests_env(), start_new_session=True)
     try:
         deadline = time.monotonic() + 60
         # kill it mid-run: two members finished, another one's generations checkpointed

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic import NoisyFlat, Sphere
 
 from optim.cmaes import CmaOptimizer, GenerationStats, StopRules
 from optim.errors import CheckpointError
-from optim.synthetic import NoisyFlat, Sphere
 
 
 def drive(opt: CmaOptimizer, fn, max_gens: int = 10_000) -> str | None:

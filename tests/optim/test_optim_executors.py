@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from proc_helpers import tests_env
+from synthetic import KillWorker, RaiseAbove, Sleep, Sphere
 
 from optim.cmaes import FAILED_OBJECTIVE, CmaOptimizer, StopRules
 from optim.errors import EvaluationError
@@ -19,7 +21,6 @@ from optim.executors import (
     SerialExecutor,
     make_executor,
 )
-from optim.synthetic import KillWorker, RaiseAbove, Sleep, Sphere
 
 
 def plain_float(x: np.ndarray) -> float:
@@ -114,7 +115,7 @@ POOL_PARENT = """
 import os, sys, time
 import numpy as np
 from optim.executors import PoolExecutor
-from optim.synthetic import Sphere
+from synthetic import Sphere
 pool = PoolExecutor(2)
 pool.map(Sphere(), [np.zeros(2), np.ones(2)])
 print(" ".join(str(p) for p in pool.pids()), flush=True)
@@ -127,7 +128,7 @@ def test_pool_workers_exit_when_their_parent_is_killed():
     """SIGKILL runs no clean-up in the parent: its workers notice and exit by themselves
     (before, they waited on the call queue for ever, 200 MB each)."""
     proc = subprocess.Popen([sys.executable, "-c", POOL_PARENT], stdout=subprocess.PIPE,
-                            text=True, cwd=Path(__file__).resolve().parents[2])
+                            text=True, cwd=Path(__file__).resolve().parents[2], env=tests_env())
     try:
         workers = [int(p) for p in proc.stdout.readline().split()]
         assert len(workers) == 2 and not any(_gone(p) for p in workers)

@@ -18,7 +18,6 @@ MODULES = (
     "optim.interpolate",
     "optim.superpose",
     "optim.errors",
-    "optim.synthetic",
     "optim.outcome",
     "optim.family",
     "optim.family.spec",

@@ -6,13 +6,13 @@ import json
 
 import numpy as np
 import pytest
+from synthetic import Sphere
 
 from optim.errors import BasisError, ResultFileError
 from optim.executors import SerialExecutor
 from optim.pca import Basis, build_basis, build_basis_from_rows
 from optim.result import OptimizationResult
 from optim.run import optimize
-from optim.synthetic import Sphere
 
 DURATIONS = (0.3, 0.45, 0.6, 0.75, 0.9, 1.05, 1.2)
 

@@ -6,13 +6,13 @@ import json
 
 import numpy as np
 import pytest
+from synthetic import RaiseAbove, Sphere
 
 from optim.errors import CheckpointError, EvaluationError, ResultFileError
 from optim.executors import PoolExecutor, SerialExecutor
 from optim.result import OptimizationResult
 from optim.run import CANCELLED, load_checkpoint, optimize
 from optim.spline import decode, flat_params
-from optim.synthetic import RaiseAbove, Sphere
 
 
 class KilledError(Exception):

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from synthetic import RunningSum
 
 from optim import rankcut
 from optim.executors import Executor, PoolExecutor, SerialExecutor
@@ -15,7 +16,6 @@ from optim.loop import SearchSpace, final_evaluation, new_optimizer, run_generat
 from optim.outcome import EvalOutcome
 from optim.procpool import SlotPool
 from optim.run import BatchEvaluator, optimize
-from optim.synthetic import RunningSum
 from sim import load_spec
 
 

@@ -1,14 +1,14 @@
 """Unit-test fixtures of the service/worker layers: a migrated SQLite store per test and a
-synthetic objective (optim.synthetic; fakes only here, never in the integration tests)."""
+synthetic objective (tests/synthetic.py; fakes only here, never in the integration tests)."""
 
 from __future__ import annotations
 
 import pytest
 from svc_helpers import LOCAL
+from synthetic import Sphere
 
 from cmrt.settings import Settings
 from optim.executors import SerialExecutor
-from optim.synthetic import Sphere
 from store import open_repository
 from worker.executors import LocalPoolExecutor
 

@@ -23,11 +23,12 @@ import uvicorn
 from fastapi.testclient import TestClient
 
 sys.path.insert(0, str(Path(__file__).parent))
+sys.path += [str(Path(__file__).parents[2]), str(Path(__file__).parents[1])]  # for `synthetic`
 from svc_helpers import LOCAL, bend_spec  # noqa: E402
+from synthetic import Sphere  # noqa: E402
 
 from cmrt.settings import Settings  # noqa: E402
 from optim.executors import SerialExecutor  # noqa: E402
-from optim.synthetic import Sphere  # noqa: E402
 from service.app import create_app  # noqa: E402
 from service.schemas import JOB_EXAMPLE  # noqa: E402
 from store import open_repository  # noqa: E402

@@ -6,9 +6,9 @@ import threading
 
 import pytest
 from svc_helpers import bend_spec
+from synthetic import Sphere
 
 from optim.executors import EvalOutcome, SerialExecutor
-from optim.synthetic import Sphere
 from sim.spec import parse_spec
 from store import NotFound
 from store.records import CANCELLED, FAILED, STOPPED
@@ -212,8 +212,9 @@ def test_the_rank_cut_keeps_a_local_pool_job_identical(repo, config):
     """The embedded path cuts a generation's certain last candidate (optim.rankcut) in its
     real process pool, and the job's every generation (candidates, best, median, sigma), its
     stop rule and its result are those of the command line's run without any cut."""
+    from synthetic import RunningSum
+
     from optim.run import optimize
-    from optim.synthetic import RunningSum
     from sim import load_spec
     from worker.fairpool import FairPool
 

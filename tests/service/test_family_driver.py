@@ -12,13 +12,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from synthetic import LineFamily
 
 from optim.executors import PoolExecutor, SerialExecutor
 from optim.family.checks import family_checks
 from optim.family.plan import plan_runs
 from optim.family.spec import parse_family
 from optim.family_run import run_family
-from optim.synthetic import LineFamily
 from store.records import CANCELLED, FAILED, FAMILY_DONE, FAMILY_RUNNING
 from worker.driver import JobDriver
 from worker.executors import LocalPoolExecutor

@@ -1,7 +1,7 @@
 """Fixtures of the worker unit tests: a migrated store on SQLite and on PostgreSQL (the same
 server as the store contract suite, CMRT_TEST_POSTGRES_URL, one throw-away schema per test
 session; skipped with the reason only when the server cannot be reached), and a synthetic
-objective (optim.synthetic; fakes only here, never in the integration tests)."""
+objective (tests/synthetic.py; fakes only here, never in the integration tests)."""
 
 from __future__ import annotations
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 from store_helpers import get_evaluation
+from synthetic import Sphere
 
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
-from optim.synthetic import Sphere
 from store.repository import SqlRepository
 from worker.candidates import JobSpecs, run_candidate
 

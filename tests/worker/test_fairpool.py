@@ -8,10 +8,11 @@ import time
 
 import numpy as np
 import pytest
+from proc_helpers import tests_env
+from synthetic import KillWorker, Sleep, Sphere
 
 from optim.errors import EvaluationError
 from optim.outcome import EvalOutcome
-from optim.synthetic import KillWorker, Sleep, Sphere
 from worker.fairpool import FairPool
 
 
@@ -86,7 +87,7 @@ def test_process_death_and_time_limit_are_per_candidate(tmp_path):
 _OWNER = """
 import os, sys, time
 import numpy as np
-from optim.synthetic import Sleep
+from synthetic import Sleep
 from worker.fairpool import FairPool
 pool = FairPool(2)
 pool.run("j", Sleep(0.0), [np.zeros(2)] * 2, lambda: None, lambda i, o: None)
@@ -108,7 +109,8 @@ def test_slots_end_when_their_server_is_killed_with_sigkill():
     import subprocess
     import sys
 
-    owner = subprocess.Popen([sys.executable, "-c", _OWNER], stdout=subprocess.PIPE, text=True)
+    owner = subprocess.Popen([sys.executable, "-c", _OWNER], stdout=subprocess.PIPE, text=True,
+                             env=tests_env())
     try:
         pids = [int(p) for p in owner.stdout.readline().split()]
         assert len(pids) == 2 and not any(_gone(p) for p in pids)

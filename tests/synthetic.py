@@ -1,6 +1,8 @@
-"""Cheap, picklable, deterministic objectives for tests and benchmarks (no physics).
+"""Cheap, picklable, deterministic objectives for the tests (no physics).
 
-Each is a top-level class instance, so it can be sent to `PoolExecutor` workers.
+Each is a top-level class instance, so it can be sent to `PoolExecutor` workers (their
+processes import it as `synthetic`: pytest puts tests/ on the path, and a spawned or forked
+process inherits it).
 """
 
 from __future__ import annotations
@@ -47,13 +49,8 @@ class NoisyFlat:
     level: float = 1.0
     amplitude: float = 0.01
     salt: int = 0
-    #: s of wall time per call, without CPU: an evaluation of fixed length that never
-    #: converges (bench/capacity.py stands sleeping workers in for simulating ones)
-    sleep: float = 0.0
 
     def __call__(self, x: np.ndarray) -> EvalOutcome:
-        if self.sleep:
-            time.sleep(self.sleep)
         return EvalOutcome(objective=self.level + self.amplitude * _hash_uniform(x, self.salt))
 
 
