@@ -41,8 +41,9 @@ def params_distance(a: CmrtRecord, b: CmrtRecord) -> float:
 
 
 #: Splines kept by their data: the library's answers build the same few members' and
-#: interpolations' splines at every query (a spline is immutable once built).
-SPLINES_KEPT = 4096
+#: interpolations' splines at every query (a spline is immutable once built). As many as the
+#: store keeps records (store.library.RECORDS_KEPT): what a full collection walks stays small.
+SPLINES_KEPT = 1024
 
 
 def spline_of(length: float, knot_times: Sequence[float], values: Sequence[float],

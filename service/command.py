@@ -26,6 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Serve until uvicorn stops; 2 with one clear line if the settings or database are
     unusable."""
+    import gc
+
     import uvicorn
 
     from service.app import create_app
@@ -42,6 +44,11 @@ def run(args: argparse.Namespace) -> int:
     warning = host_warning(settings)
     if warning:
         logging.getLogger("cmrt.service").warning("serve: %s", warning)
+    # What is imported and built by now lives as long as the process: out of the collector's
+    # sight, a full collection walks only what requests made since (about 200,000 objects
+    # walked otherwise: a 60-190 ms pause of every request in flight; bench/library_scale.py).
+    gc.collect()
+    gc.freeze()
     uvicorn.run(app, host=settings.api_host, port=settings.api_port,
                 log_level=level.lower(), timeout_graceful_shutdown=5)
     return 0

@@ -228,7 +228,7 @@ class FamilyRecord:
         return self.status in FAMILY_TERMINAL
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)  # no __dict__: a library keeps thousands (store.library)
 class CmrtKey:
     """What picking and listing library CMRTs by task parameter needs, without their curves,
     splines and specs: `LibraryRepository.cmrt_keys` and `find_cmrt_keys` (a CMRT's summary
