@@ -163,7 +163,8 @@ def _ping() -> int:
 
 def kill_process_pool(pool: cf.ProcessPoolExecutor) -> None:
     """Kill a process pool's processes (SIGKILL) and shut it down without waiting."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())  # private: the only handle
+    # the executor's private process table: the only handle on its processes (None once shut)
+    procs = list((pool._processes or {}).values())
     for p in procs:
         with contextlib.suppress(Exception):
             p.kill()
@@ -222,7 +223,7 @@ class _Slot:
 
     def pids(self) -> list[int]:
         ex = self.executor
-        return [] if ex is None else list(getattr(ex, "_processes", None) or {})
+        return [] if ex is None else list(ex._processes or {})  # private, as kill_process_pool
 
     def kill(self, *, restart: bool = False) -> None:
         """Kill the slot's process; with `restart` start its successor at once (its imports

@@ -146,9 +146,10 @@ class OptimizationResult:
         """A result for `spec` (a TaskSpec, or a `sim.spec.CanonicalSpec` whose document it
         keeps without dumping the spec again) whose best CMRT is `params` (spline data
         derived)."""
-        document = getattr(spec, "document", None)
-        if document is not None:
-            spec = spec.spec
+        from sim.spec import CanonicalSpec  # loaded already: `spec` is one of its types
+
+        if isinstance(spec, CanonicalSpec):
+            document, spec = spec.document, spec.spec
         else:
             document = spec.model_dump(mode="json")
         p = check_params(spec, params)

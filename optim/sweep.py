@@ -155,13 +155,12 @@ class PushCellObjective:
         canonical = _canonical(doc)
         sim = SPECS.simulator(canonical)
         ev = sim.run(None)
-        steps = getattr(sim.controller, "steps", None)
         return CellOutcome(
             objective=float(ev.objective), fell=bool(ev.fell), cpu_seconds=float(ev.cpu_seconds),
             sim_seconds=float(ev.sim_seconds),
             fall_time=None if ev.fall_time is None else float(ev.fall_time),
             fall_direction=ev.fall_direction, task_success=ev.task_success,
-            foot_steps=None if steps is None else len(steps))
+            foot_steps=sim.controller.foot_steps)
 
 
 @dataclass(frozen=True)

@@ -166,10 +166,11 @@ RECONNECT_SECONDS = 30.0
 
 
 def with_reconnect(call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
-    """`call(*args, **kwargs)`, tried again (backing off from 0.05 to 2 s, for up to
-    `RECONNECT_SECONDS`) when it fails on a lost or refused database connection or another
-    transient database error (SQLAlchemy's OperationalError; SQLAlchemy has already discarded the
-    dead connections, so the next try opens a fresh one).
+    """`call(*args, **kwargs)` (a repository's method, named in the log), tried again
+    (backing off from 0.05 to 2 s, for up to `RECONNECT_SECONDS`) when it fails on a lost or
+    refused database connection or another transient database error (SQLAlchemy's
+    OperationalError; SQLAlchemy has already discarded the dead connections, so the next try
+    opens a fresh one).
 
     Safe for the calls of `run_candidate`: a read, a first-result-wins write, or a claim, which
     repeated after a commit whose reply was lost counts one attempt too many (erring toward
@@ -186,7 +187,7 @@ def with_reconnect(call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
             if time.monotonic() + delay > deadline:
                 raise
             log.warning("database call %s failed (%s: %s); trying again in %.2f s",
-                        getattr(call, "__name__", call), type(err.orig).__name__,
+                        call.__name__, type(err.orig).__name__,
                         str(err.orig).strip().splitlines()[0] if err.orig else "", delay)
             time.sleep(delay)
             delay = min(2.0 * delay, 2.0)

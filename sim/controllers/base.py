@@ -95,6 +95,12 @@ class Controller:
     #: rad/s^2 (m/s^2 for the root's x, y): the accelerations a held step holds.
     qdd: np.ndarray
 
+    @property
+    def foot_steps(self) -> int | None:
+        """Steps taken since `reset` by a controller that steps; None for one that never
+        does (what `cmrt sweep` reports per cell)."""
+        return None
+
     def reset(self, observation: Observation | None = None,
               reference: Cmrt | None = None) -> None:
         """Start a run (module doc)."""

@@ -286,6 +286,11 @@ class SteppingController(Controller):
     """The momentum controller with stepping (module doc); the Controller protocol, with
     `stance` (indices into the character's feet, None for all) read by the rollout."""
 
+    @property
+    def foot_steps(self) -> int | None:
+        """Steps taken since `reset` (started ones included)."""
+        return len(self.steps)
+
     def __init__(self, character: Character, schedule: GainScheduler,
                  trajectory: PoseTrajectory, arrays: ModelArrays | None = None,
                  dt: float = 0.001, mu: float = 1.0, params: SteppingParams | None = None):
