@@ -406,16 +406,24 @@ def _add_service_commands(sub: Any) -> None:
     w.set_defaults(func=worker_command.run)
 
 
+def _domain_errors() -> tuple[type[Exception], ...]:
+    """`SimError` and `OptimError`, of those of their modules the command has imported: an
+    error of a module never imported cannot have been raised, and importing `sim.errors` here
+    would load the simulator (the `sim` package, numba) into every client command."""
+    found = []
+    for module, name in (("sim.errors", "SimError"), ("optim.errors", "OptimError")):
+        if module in sys.modules:
+            found.append(getattr(sys.modules[module], name))
+    return tuple(found)
+
+
 def main(argv: list[str] | None = None) -> int:
     quiet_plotting_warning()
-    from optim.errors import OptimError
-    from sim.errors import SimError
-
     args = build_parser().parse_args(argv)
     try:
         with terminate_like_interrupt():
             return int(args.func(args) or 0)
-    except (SimError, OptimError) as err:
+    except _domain_errors() as err:  # evaluated once an error is raised: after the command
         return die(str(err))
     except FileNotFoundError as err:
         return die(f"{err.filename}: no such file")

@@ -16,7 +16,7 @@ TERM_GRACE_S = 30.0
 KILL_WAIT_S = 10.0
 
 
-def tests_env() -> dict[str, str]:
+def child_env() -> dict[str, str]:
     """This environment for a Python child that imports the tests' helpers (`synthetic`): the
     checkout and tests/ on its path, in pytest's order (the product's `store` before the tests'
     `store/` folder)."""

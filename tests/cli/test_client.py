@@ -11,6 +11,7 @@ import re
 import select
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -52,8 +53,10 @@ def _env(**extra: str) -> dict[str, str]:
 
 def _serve(tmp: Path, **extra: str) -> tuple[subprocess.Popen, str]:
     port = _free_port()
+    # a family steps at each scan: every 0.2 s instead of 2 s, so families end in seconds
     env = _env(**{"CMRT_DATA_DIR": str(tmp / "data"), "CMRT_WORKERS": "1",
-                  "CMRT_API_PORT": str(port), "CMRT_LOG_LEVEL": "WARNING", **extra})
+                  "CMRT_API_PORT": str(port), "CMRT_LOG_LEVEL": "WARNING",
+                  "CMRT_SCAN_INTERVAL": "0.2", **extra})
     proc = subprocess.Popen([str(CMRT), "serve"], env=env, cwd=tmp,
                             stdout=(tmp / "serve.log").open("wb"), stderr=subprocess.STDOUT,
                             start_new_session=True)
@@ -271,6 +274,31 @@ def test_cli_unreachable_service_is_one_clear_line(tmp_path):
     assert p.returncode == 3 and url in p.stderr
     p = _cli(None, "jobs", CMRT_URL="not a url")
     assert p.returncode == 2 and "CMRT_URL" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_client_commands_load_no_simulator(tmp_path):
+    """docs/architecture.md: `cmrt --help`, `cmrt submit` or `cmrt jobs` never load the
+    simulator, numba, SQLAlchemy or Celery (a client command starts in a fraction of a second),
+    a failing one included; a spec error of a command that simulates is still one line,
+    exit 2."""
+    url = f"http://127.0.0.1:{_free_port()}"
+    code = (
+        "import contextlib, sys\n"
+        "from cli.main import main\n"
+        "with contextlib.suppress(SystemExit):\n"
+        "    main(['--help'])\n"
+        f"codes = [main(['jobs', '--url', {url!r}]), main(['watch', 'x', '--url', {url!r}])]\n"
+        "bad = sorted({m.split('.')[0] for m in sys.modules} & {'sim', 'numba', 'sqlalchemy',"
+        " 'celery'})\n"
+        "print(codes, bad)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120, cwd=tmp_path, env=_env(PYTHONPATH=str(ROOT)))
+    assert p.stdout.strip().splitlines()[-1] == "[3, 3] []", p.stdout + p.stderr
+    bad = tmp_path / "bad.yaml"  # a command that loads the simulator: its errors are caught
+    bad.write_text(yaml.safe_dump({**bend("bad"), "clip": {"duration": -1}}))
+    p = _cli(None, "simulate", str(bad))
+    assert p.returncode == 2 and p.stderr.startswith("cmrt: error: ") and \
+        "clip" in p.stderr and "Traceback" not in p.stderr, p.stderr
 
 
 def _run_in_pty(argv: list[str], env: dict[str, str], timeout: float = 120) -> tuple[int, str]:

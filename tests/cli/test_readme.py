@@ -12,6 +12,8 @@ one runs (and the few substitutions, each said where it is made):
     this file, and the optimise command of `make run` runs verbatim below);
   * the servers run on a free port (`CMRT_API_PORT` / `--port`: 8000 may be taken on a shared
     machine) against the test PostgreSQL and Redis instead of the README's example URLs;
+    the embedded server of the client commands steps its family every 0.2 s
+    (`CMRT_SCAN_INTERVAL`, 2 s by default);
   * `docker compose` lines run in the compose suite only (`make test-compose`, which sets
     CMRT_IT_MODE=compose and needs an engine); elsewhere they are skipped with that reason;
   * `open URL` (macOS) runs as `curl -s URL`;
@@ -182,21 +184,41 @@ def test_make_targets_resolve(scratch):
                 assert target == "test" or "cmrt optimize" in p.stdout
 
 
+def _family_command() -> str:
+    """The README's `cmrt family run` line (its comment cut off)."""
+    return next(_strip_comment(c) for c in readme_commands()
+                if c.startswith(".venv/bin/cmrt family run"))
+
+
+def _run_family_form(form: str, d: Path) -> tuple[subprocess.CompletedProcess, dict]:
+    """`form` of the family command run in `d`, afresh unless it is the --resume form (its
+    output's run folder removed first); the process and the output document it wrote."""
+    out = d / re.search(r"--out (\S+)", form).group(1)
+    if "--resume" not in form:
+        shutil.rmtree(out.with_suffix(".runs"), ignore_errors=True)
+    p = _run(form, d)
+    return p, json.loads(out.read_text())
+
+
+@pytest.fixture(scope="module")
+def first_family_form(scratch) -> tuple[str, subprocess.CompletedProcess, dict]:
+    """The family command's first form (no options), run afresh once for the module: its
+    members feed the `pca` and `interpolate` lines and `test_family_command` checks its output
+    (the family takes the longest of the CLI lines, so it runs once, not once per test)."""
+    form = _expand_optional(_family_command())[0]
+    return (form, *_run_family_form(form, scratch))
+
+
 def _family_members(d: Path, pattern: str) -> None:
     """The result files `pattern` names (the README's `pca` and `interpolate` lines read the
-    members `cmrt family run` saved), made by the README's family command as shown (its first
-    form) when there are none yet."""
-    if list(d.glob(pattern)):
-        return
-    family = next(_strip_comment(c) for c in readme_commands()
-                  if c.startswith(".venv/bin/cmrt family run"))
-    out = d / re.search(r"--out (\S+)", family).group(1)
-    shutil.rmtree(out.with_suffix(".runs"), ignore_errors=True)
-    _run(_expand_optional(family)[0], d)
+    members `cmrt family run` saved), made again by the family command's first form if a
+    later form replaced them."""
+    if not list(d.glob(pattern)):
+        _run_family_form(_expand_optional(_family_command())[0], d)
     assert len(list(d.glob(pattern))) >= 3, sorted(p.name for p in d.rglob("*.json"))
 
 
-def test_cli_block(scratch):
+def test_cli_block(scratch, first_family_form):
     d = scratch
     shutil.copy(d / "results" / "bend_0.5.json", d / "RESULT.json")
     lines = [_strip_comment(c) for c in readme_commands() if c.startswith(".venv/bin/cmrt ")]
@@ -229,29 +251,42 @@ def test_cli_block(scratch):
         assert 'id="replay-data"' in html and len(html.encode()) < 1_000_000
 
 
-def test_family_command(scratch):
+def test_family_command(scratch, first_family_form):
     """`cmrt family run` in every form shown, on the scratch fast bend's tiny budget; a form
-    without --resume starts afresh (its output's run folder removed first)."""
-    d = scratch
+    without --resume starts afresh (its output's run folder removed first). The first form
+    ran once for the module (`first_family_form`); the others run here, after it."""
+    first, p, doc = first_family_form
     lines = [_strip_comment(c) for c in readme_commands()
              if c.startswith(".venv/bin/cmrt family run")]
     assert lines
     for line in lines:
         for form in _expand_optional(line):
-            out = d / re.search(r"--out (\S+)", form).group(1)
-            if "--resume" not in form:
-                shutil.rmtree(out.with_suffix(".runs"), ignore_errors=True)
-            p = _run(form, d)
-            doc = json.loads(out.read_text())
+            if form != first:
+                p, doc = _run_family_form(form, scratch)
             assert doc["checks"]["rows"] and "median speed-up" in p.stdout
 
 
 def test_bench_scripts_help(scratch):
+    """Every bench/ script the README shows answers --help (all started at once: each is a
+    Python start-up and its imports, and they are independent)."""
+    procs = {}
     for line in readme_commands():
         if line.startswith(".venv/bin/python bench/"):
-            script = line.split()[1]
-            p = _run(f".venv/bin/python {script} --help", scratch, timeout=120)
-            assert "usage" in p.stdout.lower()
+            cmd = f".venv/bin/python {line.split()[1]} --help"
+            procs[cmd] = subprocess.Popen(["bash", "-c", cmd], cwd=scratch, env=_env(),
+                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                          text=True)
+    try:
+        assert len(procs) > 10, procs
+        for cmd, proc in procs.items():
+            out, err = proc.communicate(timeout=120)
+            assert proc.returncode == 0, f"{cmd!r} exited {proc.returncode}:\n{err[-3000:]}"
+            assert "usage" in out.lower(), out
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
 
 
 def test_docker_block(tmp_path):
@@ -364,7 +399,9 @@ def test_client_commands(scratch, tmp_path):
                                              "library", "library", "family", "family", "family"]
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
-    env = _env(CMRT_API_PORT=str(port), CMRT_DATA_DIR=str(tmp_path / "data"), CMRT_WORKERS="1")
+    # the family steps at each of the server's scans: every 0.2 s instead of 2 s
+    env = _env(CMRT_API_PORT=str(port), CMRT_DATA_DIR=str(tmp_path / "data"), CMRT_WORKERS="1",
+               CMRT_SCAN_INTERVAL="0.2")
     proc = _start(".venv/bin/cmrt serve", scratch, env, tmp_path / "serve.log")
     try:
         _wait_http(f"{url}/health", proc)
@@ -429,7 +466,7 @@ def test_cmrt_worker(scratch, tmp_path):
                              capture_output=True, timeout=60).returncode != 0:
             assert proc.poll() is None, (tmp_path / "worker.log").read_text()[-3000:]
             assert time.monotonic() - t0 < 90, "the worker never answered a ping"
-            time.sleep(1.0)
+            time.sleep(0.2)
     finally:
         rc = _stop(proc)
     assert rc == 0, (tmp_path / "worker.log").read_text()[-3000:]
@@ -506,7 +543,7 @@ def _first_job_shows_anticipation(api: str, job_id: str, timeout: float = 600.0)
     while (j := httpx.get(f"{api}/jobs/{job_id}", timeout=30).json())["status"] in (
             "queued", "running"):
         assert time.monotonic() - t0 < timeout, f"the first job still {j['status']}: {j}"
-        time.sleep(1.0)
+        time.sleep(0.2)
     assert j["status"] == "converged" and j["stop_rule"] == "threshold", j
     assert j["best_objective"] < j["spec"]["optimize"]["threshold"]
     entry = httpx.get(f"{api}/cmrts/{j['cmrt_id']}", timeout=30).json()

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from proc_helpers import tests_env
+from proc_helpers import child_env
 from synthetic import LineFamily
 
 from optim.executors import PoolExecutor
@@ -250,7 +250,7 @@ def test_resume_after_a_killed_run_gives_the_same_family(tmp_path: Path) -> None
     fs = parse_family(data)
     killed = tmp_path / "killed"
     proc = subprocess.Popen([sys.executable, "-c", RESUME_SCRIPT, json.dumps(data),
-                             str(killed), "0.01"], env=tests_env(), start_new_session=True)
+                             str(killed), "0.01"], env=child_env(), start_new_session=True)
     try:
         deadline = time.monotonic() + 60
         # kill it mid-run: two members finished, another one's generations checkpointed

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from proc_helpers import tests_env
+from proc_helpers import child_env
 from synthetic import KillWorker, RaiseAbove, Sleep, Sphere
 
 from optim.cmaes import FAILED_OBJECTIVE, CmaOptimizer, StopRules
@@ -128,7 +128,7 @@ def test_pool_workers_exit_when_their_parent_is_killed():
     """SIGKILL runs no clean-up in the parent: its workers notice and exit by themselves
     (before, they waited on the call queue for ever, 200 MB each)."""
     proc = subprocess.Popen([sys.executable, "-c", POOL_PARENT], stdout=subprocess.PIPE,
-                            text=True, cwd=Path(__file__).resolve().parents[2], env=tests_env())
+                            text=True, cwd=Path(__file__).resolve().parents[2], env=child_env())
     try:
         workers = [int(p) for p in proc.stdout.readline().split()]
         assert len(workers) == 2 and not any(_gone(p) for p in workers)

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from proc_helpers import tests_env
+from proc_helpers import child_env
 from synthetic import KillWorker, Sleep, Sphere
 
 from optim.errors import EvaluationError
@@ -110,7 +110,7 @@ def test_slots_end_when_their_server_is_killed_with_sigkill():
     import sys
 
     owner = subprocess.Popen([sys.executable, "-c", _OWNER], stdout=subprocess.PIPE, text=True,
-                             env=tests_env())
+                             env=child_env())
     try:
         pids = [int(p) for p in owner.stdout.readline().split()]
         assert len(pids) == 2 and not any(_gone(p) for p in pids)
