@@ -117,7 +117,7 @@ class FamilyRow(Base):
     #: The library family its members land in (the base spec's family).
     family: Mapped[str] = mapped_column(String(100), index=True)
     param: Mapped[str] = mapped_column(String(200))
-    #: The family request (optim.family.FamilySpec, JSON form).
+    #: The family request (optim.family.spec.FamilySpec, JSON form).
     spec: Mapped[Any] = mapped_column(JSON)
     #: SHA-256 of the request's canonical text (cmrt.canonical).
     spec_hash: Mapped[str] = mapped_column(String(64))
@@ -126,7 +126,7 @@ class FamilyRow(Base):
     cancel_requested: Mapped[bool] = mapped_column(Boolean)
     #: Outcomes of the interpolated CMRTs at the members' values: [[value, outcome], ...].
     probes: Mapped[Any | None] = mapped_column(JSON, deferred=True)
-    #: optim.family.family_report, once every run is finished.
+    #: optim.family.report.family_report, once every run is finished.
     report: Mapped[Any | None] = mapped_column(JSON, deferred=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), index=True)
     finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime())
