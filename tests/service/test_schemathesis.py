@@ -6,8 +6,9 @@ schemathesis runs every check (`--checks all`) in its coverage, fuzzing and stat
 (and the examples phase on the documented examples) with a fixed seed: no server error, no
 response that breaks the document. It runs twice: on the open API, and on the API closed by
 CMRT_API_TOKEN (reads closed too) with the token sent, where schemathesis' `ignored_auth` check
-also sends each operation without it and expects a 401. The figures are printed (pytest -s)
-and written to `schemathesis-figures.json` in the test's temporary folder.
+also sends each operation without it and expects a 401. The two runs go side by side, each
+against its own server (one fixture for the module; each test checks its run). The figures are
+printed (pytest -s) and written to `schemathesis-figures.json` in each run's temporary folder.
 
 `FUZZ_DRIVERS=on` serves the app with its job drivers on (every accepted job optimised for real
 while the fuzzer goes on), `FUZZ_MAX_EXAMPLES=N` sets the cases per operation and phase:
@@ -25,7 +26,10 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -119,15 +123,19 @@ def _schemathesis() -> list[str]:
 TOKEN = "fuzz-token"
 
 
-@pytest.fixture(params=["open", "token"])
-def served(request, tmp_path):
+#: The two runs: the open API, and the API closed by the token (reads too).
+MODES = ("open", "token")
+
+
+@contextlib.contextmanager
+def _served(mode: str, tmp_path: Path) -> Iterator[tuple[str, dict[str, str], list[str], int]]:
     """The served app: open, or closed by CMRT_API_TOKEN (reads too); yields (url, ids,
-    extra schemathesis arguments)."""
+    extra schemathesis arguments, the server's process group)."""
     port = _free_port()
     log = (tmp_path / "server.log").open("w")
     env = {k: v for k, v in os.environ.items() if not k.startswith("CMRT_")}
     extra: list[str] = []
-    if request.param == "token":
+    if mode == "token":
         env["CMRT_API_TOKEN"] = TOKEN
         extra = ["-H", f"Authorization: Bearer {TOKEN}"]
     proc = subprocess.Popen(
@@ -160,7 +168,9 @@ def served(request, tmp_path):
         log.close()
 
 
-def test_schemathesis_all_checks(served, tmp_path):
+def _fuzz(tmp_path: Path, served: tuple) -> dict[str, Any]:
+    """One schemathesis run against `served`: its exit code, output and report (None when it
+    wrote none)."""
     url, ids, extra, server_pgid = served
     config = (HERE / "schemathesis.toml.in").read_text()
     for k, v in ids.items():
@@ -171,9 +181,35 @@ def test_schemathesis_all_checks(served, tmp_path):
            f"{url}/openapi.json", "--checks", "all", "--max-examples", str(MAX_EXAMPLES),
            *extra, "--report", "json", "--report-json-path", str(report)]
     code, stdout, stderr = _run_bounded(cmd, tmp_path, server_pgid)
+    return {"url": url, "tmp": tmp_path, "code": code, "stdout": stdout, "stderr": stderr,
+            "report": json.loads(report.read_text()) if report.exists() else None}
+
+
+@pytest.fixture(scope="module")
+def fuzzed(tmp_path_factory) -> Iterator[dict[str, dict[str, Any]]]:
+    """Both runs, each against its own server, side by side (each is a client and a server
+    taking turns, about one CPU: together they use both of the machine's); the servers
+    answer until the module's tests are done. Runs by mode."""
+    dirs = {m: tmp_path_factory.mktemp(f"fuzz-{m}") for m in MODES}
+    with contextlib.ExitStack() as stack, ThreadPoolExecutor(len(MODES)) as pool:
+        starting = {m: _served(m, dirs[m]) for m in MODES}
+        started = {m: pool.submit(c.__enter__) for m, c in starting.items()}
+        for c in starting.values():  # each server stopped at the end, or if another failed
+            stack.push(c)  # (the pool exits first: every start has ended by then)
+        served = {m: f.result() for m, f in started.items()}
+        runs = {m: pool.submit(_fuzz, dirs[m], served[m]) for m in MODES}
+        runs = {m: f.result() for m, f in runs.items()}
+        yield runs
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_schemathesis_all_checks(fuzzed, mode):
+    run = fuzzed[mode]
+    url, tmp_path, code, stdout, stderr = (run[k] for k in ("url", "tmp", "code", "stdout",
+                                                             "stderr"))
     assert code is not None, f"schemathesis killed: {stderr[-2000:]}\n{stdout[-4000:]}"
-    assert report.exists(), stdout[-4000:] + stderr[-2000:]
-    r = json.loads(report.read_text())
+    assert run["report"] is not None, stdout[-4000:] + stderr[-2000:]
+    r = run["report"]
     accepted = {op: sum(p["accepted"] for p in phases.values())
                 for op, phases in r["valid_rates"].items()}
     figures = {
