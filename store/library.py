@@ -176,59 +176,47 @@ FAMILIES_KEPT = 512
 
 
 class _Kept:
-    """What `SqlLibrary` has read: records by id and families' keys with their stamp, both
-    least recently used first (thread-safe: the service reads on several threads)."""
+    """At most `size` values by key, least recently used dropped first (thread-safe: the
+    service reads on several threads). `SqlLibrary` keeps two: records by id, and families'
+    keys with the stamp they were read at."""
 
-    def __init__(self) -> None:
+    def __init__(self, size: int) -> None:
+        self.size = size
         self.lock = threading.Lock()
-        self.records: OrderedDict[str, CmrtRecord] = OrderedDict()
-        self.keys: OrderedDict[str, tuple[tuple[Any, ...], list[CmrtKey]]] = OrderedDict()
+        self.values: OrderedDict[str, Any] = OrderedDict()
 
-    def record(self, cmrt_id: str) -> CmrtRecord | None:
+    def get(self, key: str) -> Any:
         with self.lock:
-            rec = self.records.get(cmrt_id)
-            if rec is not None:
-                self.records.move_to_end(cmrt_id)
-            return rec
+            value = self.values.get(key)
+            if value is not None:
+                self.values.move_to_end(key)
+            return value
 
-    def keep_records(self, recs: Iterable[CmrtRecord]) -> None:
+    def put(self, items: Iterable[tuple[str, Any]]) -> None:
         with self.lock:
-            for r in recs:
-                self.records[r.id] = r
-                self.records.move_to_end(r.id)
-            while len(self.records) > RECORDS_KEPT:
-                self.records.popitem(last=False)
-
-    def family_keys(self, family: str, stamp: tuple[Any, ...]) -> list[CmrtKey] | None:
-        with self.lock:
-            got = self.keys.get(family)
-            if got is None or got[0] != stamp:
-                return None
-            self.keys.move_to_end(family)
-            return got[1]
-
-    def keep_keys(self, family: str, stamp: tuple[Any, ...], keys: list[CmrtKey]) -> None:
-        with self.lock:
-            self.keys[family] = (stamp, keys)
-            self.keys.move_to_end(family)
-            while len(self.keys) > FAMILIES_KEPT:
-                self.keys.popitem(last=False)
+            for key, value in items:
+                self.values[key] = value
+                self.values.move_to_end(key)
+            while len(self.values) > self.size:
+                self.values.popitem(last=False)
 
 
 class SqlLibrary(SqlBase, LibraryRepository):
-    @property
-    def _kept(self) -> _Kept:
-        kept = self.__dict__.get("_kept_library")
-        if kept is None:  # made on first use: SqlBase.__init__ is the repository's one __init__
-            kept = self.__dict__.setdefault("_kept_library", _Kept())
+    def _kept(self, what: str, size: int) -> _Kept:
+        """This repository's `what` cache (made on first use: SqlBase.__init__ is the
+        repository's one __init__)."""
+        kept = self.__dict__.get(what)
+        if kept is None:
+            kept = self.__dict__.setdefault(what, _Kept(size))
         return kept
 
     def _records(self, ids: Sequence[str]) -> dict[str, CmrtRecord]:
         """The records of `ids` that exist: kept ones from memory, the rest in one query."""
+        kept = self._kept("_kept_records", RECORDS_KEPT)
         out: dict[str, CmrtRecord] = {}
         missing = []
         for cid in ids:
-            rec = self._kept.record(cid)
+            rec = kept.get(cid)
             if rec is None:
                 missing.append(cid)
             else:
@@ -237,7 +225,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
             with self._read_core() as conn:
                 got = [CmrtRecord(**row._mapping)
                        for row in conn.execute(_RECORDS, {"ids": missing})]
-            self._kept.keep_records(got)
+            kept.put((r.id, r) for r in got)
             out.update((r.id, r) for r in got)
         return out
 
@@ -282,9 +270,6 @@ class SqlLibrary(SqlBase, LibraryRepository):
             return None if row is None else _cmrt_record(row)
 
     def get_cmrt(self, cmrt_id):
-        rec = self._kept.record(cmrt_id)
-        if rec is not None:
-            return rec
         rec = self._records([cmrt_id]).get(cmrt_id)
         if rec is None:
             raise NotFound(f"CMRT {cmrt_id!a} not found")
@@ -332,11 +317,12 @@ class SqlLibrary(SqlBase, LibraryRepository):
             return [_cmrt_record(r) for r in rows], int(total)
 
     def cmrt_keys(self, family):
+        kept = self._kept("_kept_keys", FAMILIES_KEPT)
         with self._read_core() as conn:
             stamp = tuple(conn.execute(_FAMILY_STAMP, {"family": family}).one())
-            kept = self._kept.family_keys(family, stamp)
-            if kept is not None:
-                return list(kept)
+            got = kept.get(family)
+            if got is not None and got[0] == stamp:
+                return list(got[1])
             rows = conn.execute(_FAMILY_KEYS, {"family": family}).all()
         keys = [
             CmrtKey(id=cid, task_parameters={k: float(v) for k, v in tp.items()},
@@ -348,7 +334,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
             for (cid, tp, obj, knots, values, spec, created, prep, dec, character, fam, without,
                  winner, fell, job) in rows
         ]
-        self._kept.keep_keys(family, stamp, keys)
+        kept.put([(family, (stamp, keys))])
         return list(keys)
 
     def cmrt_families(self):
