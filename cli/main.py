@@ -25,6 +25,7 @@ from cmrt.cmdline import (
     quiet_plotting_warning,
     terminate_like_interrupt,
 )
+from cmrt.defaults import DEFAULT_SEED
 
 
 def _fmt(v: Any) -> str:
@@ -365,7 +366,7 @@ def _add_spec_commands(sub: Any) -> None:
     o = sub.add_parser("optimize", help="optimise the CMRT of a task spec with CMA-ES")
     o.add_argument("spec")
     o.add_argument("--workers", type=int, default=2)
-    o.add_argument("--seed", type=int, default=1)
+    o.add_argument("--seed", type=int, default=DEFAULT_SEED)
     o.add_argument("--out", metavar="RESULT.json")
     o.add_argument("--checkpoint", metavar="PATH", help="default: the --out path with .ckpt")
     o.add_argument("--resume", action="store_true", help="continue from the checkpoint")
