@@ -26,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from cmrt.defaults import DEFAULT_SEED
+
 OPTIMIZE_KEYS = ("threshold", "sigma0", "popsize", "min_evaluations", "max_evaluations",
                  "window", "improvement")
 WARM_KEYS = ("sigma0", "min_evaluations", "max_evaluations", "window", "improvement")
@@ -251,7 +253,7 @@ def _request_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--k", type=int, default=3)
     r.add_argument("--reduced-start", choices=["neighbours", "centre"], default="neighbours")
     r.add_argument("--switch-threshold", type=float, metavar="X")
-    r.add_argument("--seed", type=int, default=1)
+    r.add_argument("--seed", type=int, default=DEFAULT_SEED)
     r.add_argument("--json", action="store_true", help="print the whole report as JSON")
 
 

@@ -436,9 +436,9 @@ class _Clip:
         penalty = task.penalty(phys, math.sqrt(r.steps) * r.support_length)
         if penalty:
             objective += penalty
-        out_traces = out_frames = None
+        out_traces = out_frames = out_states = None
         if self.rec is not None:
-            out_traces, out_frames = self.rec.result(self.k_done)
+            out_traces, out_frames, out_states = self.rec.result(self.k_done)
         k_done = self.k_done
         return Evaluation(
             objective=objective, fell=fell, fall_time=fall_time, fall_reason=self.fall_reason,
@@ -447,7 +447,7 @@ class _Clip:
             contact_steps=self.contact_steps, fall_direction=self.direction,
             task_success=task.success(phys), task_penalty=penalty,
             cmrt_released_at=None if self.releasable is None else self.releasable.released_at,
-            traces=out_traces, frames=out_frames,
+            traces=out_traces, frames=out_frames, states=out_states,
         )
 
 
