@@ -52,19 +52,13 @@ def _pairs(items: list[str] | None, option: str, keys: tuple[str, ...]) -> dict[
 
 def family_request(args: argparse.Namespace) -> dict[str, Any]:
     """The family mapping (optim.family.spec.parse_family's input) from the command line."""
+    from cmrt.specfile import SpecReadError, read_spec_file
     from sim.errors import SpecError
 
-    path = Path(args.spec)
     try:
-        text = path.read_text()
-    except OSError as err:
-        raise SpecError(f"{path}: cannot read spec ({err.strerror})") from None
-    try:
-        spec = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (yaml.YAMLError, json.JSONDecodeError) as err:
-        raise SpecError(f"{path}: not valid YAML/JSON: {err}") from None
-    if not isinstance(spec, dict):
-        raise SpecError(f"{path}: a spec must be a mapping")
+        spec = read_spec_file(args.spec)
+    except SpecReadError as err:
+        raise SpecError(str(err)) from None
     overrides = _pairs(args.optimize, "--optimize", OPTIMIZE_KEYS)
     if overrides:
         block = dict(spec.get("optimize") or {})

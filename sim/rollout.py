@@ -132,7 +132,8 @@ class Rollout:
         _, p0, _ = forward_kinematics(self.q0, self.arrays.parent, self.arrays.a_par,
                                       self.arrays.a_chi)
         self.cm0 = (ch.mass[:, None] * p0).sum(axis=0) / ch.mass.sum()
-        self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self.task.motions)
+        self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self.task.motions,
+                                         self.task.tracks)
         self.controller: Controller = build_controller(
             spec.controller, ControllerContext(spec, ch, self.arrays, self.trajectory, DT,
                                                FRICTION_MU, self.q0.copy()))
