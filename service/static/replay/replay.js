@@ -86,7 +86,7 @@
   });
   const legend = el("div", { class: "legend" },
     "CM: circle, its ground projection: dashed line and tick; CM reference: vertical line; " +
-    "CP: triangle on the ground; support: thick bar; task window: shaded on the plots.");
+    "CoP: triangle on the ground; support: thick bar; task window: shaded on the plots.");
   root.appendChild(legend);
   const plotsBox = el("div", { class: "plots" });
   root.appendChild(plotsBox);
@@ -312,7 +312,7 @@
     plots.push(u);
   }
   function colour(k) { return CLIP_COLOURS[k % CLIP_COLOURS.length]; }
-  addPlot("CP error e(t) = CP - support centre", "mm", clips.map(function (c, k) {
+  addPlot("CoP error e(t) = CoP - support centre", "mm", clips.map(function (c, k) {
     return { label: c.label, stroke: colour(k), width: 1.5 };
   }), clips.map(function (c) { return column(c, "error"); }));
   addPlot("CMRT displacement", "mm", clips.map(function (c, k) {
