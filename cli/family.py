@@ -26,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from cmrt.specfile import CharacterFileError, inline_character_file
+
 OPTIMIZE_KEYS = ("threshold", "sigma0", "popsize", "min_evaluations", "max_evaluations",
                  "window", "improvement")
 WARM_KEYS = ("sigma0", "min_evaluations", "max_evaluations", "window", "improvement")
@@ -63,6 +65,10 @@ def family_request(args: argparse.Namespace) -> dict[str, Any]:
         raise SpecError(f"{path}: not valid YAML/JSON: {err}") from None
     if not isinstance(spec, dict):
         raise SpecError(f"{path}: a spec must be a mapping")
+    try:  # a character file beside the spec becomes its definition (cmrt.specfile)
+        spec = inline_character_file(spec, path.parent)
+    except CharacterFileError as err:
+        raise SpecError(f"{path}: {err}") from None
     overrides = _pairs(args.optimize, "--optimize", OPTIMIZE_KEYS)
     if overrides:
         block = dict(spec.get("optimize") or {})

@@ -29,6 +29,8 @@ from typing import Any
 import httpx
 import yaml
 
+from cmrt.specfile import CharacterFileError, inline_character_file
+
 #: Job states after which nothing changes any more.
 TERMINAL_STATUSES = ("converged", "stopped", "failed", "cancelled")
 #: Job states of a job that finished with a result (the others ended without one).
@@ -121,7 +123,8 @@ def split_detail(detail: str) -> tuple[str | None, str]:
 
 
 def load_spec_file(path: str | Path) -> dict[str, Any]:
-    """The task spec in a YAML or JSON file, as a dict (validation is the server's)."""
+    """The task spec in a YAML or JSON file, as a dict (validation is the server's), with
+    its `character.file` read into `character.definition` (cmrt.specfile)."""
     p = Path(path)
     try:
         text = p.read_text()
@@ -135,7 +138,10 @@ def load_spec_file(path: str | Path) -> dict[str, Any]:
         raise SpecFileError(f"{p}: not YAML/JSON ({str(err).splitlines()[0]})") from None
     if not isinstance(data, dict):
         raise SpecFileError(f"{p}: a task spec is a mapping, got {type(data).__name__}")
-    return data
+    try:  # the service gets the character itself, never a file name
+        return inline_character_file(data, p.parent)
+    except CharacterFileError as err:
+        raise SpecFileError(f"{p}: {err}") from None
 
 
 def _parse_time(value: str | None) -> datetime | None:
