@@ -1,10 +1,14 @@
-.PHONY: setup run test test-compose docker-engine images lint bench services
+.PHONY: setup setup-test run test test-compose docker-engine images lint bench services
 
 VENV := .venv
 PY := $(VENV)/bin/python
 
+# `make run` installs what the main job needs; `make test` adds the test extras and Chromium.
 setup:
 	@bash scripts/setup.sh
+
+setup-test:
+	@bash scripts/setup.sh --test
 
 services:
 	@bash scripts/services.sh
@@ -12,7 +16,7 @@ services:
 run: setup
 	$(VENV)/bin/cmrt optimize examples/fast_bend.yaml --workers 2 --seed 1 --out results/fast_bend.json
 
-test: setup services
+test: setup-test services
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q
 
@@ -30,16 +34,16 @@ COMPOSE_ENV = CMRT_IT_MODE=compose CMRT_BASE_IMAGE=$(CMRT_BASE_IMAGE) \
 docker-engine:
 	@bash scripts/docker-engine.sh
 
-images: setup docker-engine
+images: setup-test docker-engine
 	@bash scripts/docker-images.sh
 
 OFFLINE_IMAGES = $(filter cmrt-%,$(CMRT_BASE_IMAGE) $(CMRT_REDIS_IMAGE) $(CMRT_POSTGRES_IMAGE))
 
-test-compose: $(if $(OFFLINE_IMAGES),images,setup docker-engine)
+test-compose: $(if $(OFFLINE_IMAGES),images,setup-test docker-engine)
 	$(COMPOSE_ENV) $(PY) -m pytest -q tests/integration/test_topology.py \
 		tests/integration/test_compose.py tests/cli/test_readme.py::test_docker_block
 
-lint: setup
+lint: setup-test
 	$(VENV)/bin/ruff check .
 
 bench: setup

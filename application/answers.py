@@ -45,6 +45,7 @@ from application.library import (
     spline_of,
 )
 from cmrt.canonical import text_hash
+from cmrt.defaults import DEFAULT_SEED
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
 from optim.spline import CmrtSpline, encode, sample_curve
@@ -204,7 +205,7 @@ def refine_job(
     filters: Mapping[str, float] | None = None,
     basis_id: str | None = None,
     max_evaluations: int = REFINE_MAX_EVALUATIONS,
-    seed: int = 0,
+    seed: int = DEFAULT_SEED,
     extrapolate: bool = False,
 ) -> tuple[JobRecord, Any, dict[str, Any]]:
     """Submit a refinement at `key` = `value`: a job searching the family's PCA basis (the

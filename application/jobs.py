@@ -9,6 +9,7 @@ from typing import Any
 from application import admission
 from application.bases import job_basis
 from application.library import library_start
+from cmrt.defaults import DEFAULT_SEED
 from cmrt.settings import Settings
 from optim.objective import SPECS
 from sim.spec import CanonicalSpec, stored_spec
@@ -20,8 +21,9 @@ from store import JobRecord, Repository
 START_CHOICES = ("library", "cold")
 
 
-def submit_job(repo: Repository, settings: Settings, spec: CanonicalSpec, *, seed: int = 0,
-               basis_id: str | None = None, start: str | dict[str, Any] = "library"
+def submit_job(repo: Repository, settings: Settings, spec: CanonicalSpec, *,
+               seed: int = DEFAULT_SEED, basis_id: str | None = None,
+               start: str | dict[str, Any] = "library"
                ) -> tuple[JobRecord, admission.Budget]:
     """Admit and store a new job of `spec` (canonicalised where it entered): the basis it
     names must fit the spec (`bases.UnusableBasisError`), its budget stay under the server's

@@ -28,7 +28,7 @@ from typing import Any
 
 import yaml
 
-from cmrt.specfile import inline_character_file
+from cmrt.specfile import read_spec_file
 from optim.result import OptimizationResult
 from sim.controllers.momentum import MomentumController
 from sim.ipm import capture_point
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     cmrt = OptimizationResult.load(args.cmrt).spline() if args.cmrt else None
     out = []
     for path in paths:
-        data = inline_character_file(yaml.safe_load(path.read_text()), path.parent)
+        data = read_spec_file(path)
         for kv in args.task:
             key, value = kv.split("=", 1)
             data["task"][key] = float(value)

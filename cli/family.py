@@ -26,7 +26,7 @@ from typing import Any
 
 import yaml
 
-from cmrt.specfile import CharacterFileError, inline_character_file
+from cmrt.defaults import DEFAULT_SEED
 
 OPTIMIZE_KEYS = ("threshold", "sigma0", "popsize", "min_evaluations", "max_evaluations",
                  "window", "improvement")
@@ -52,23 +52,13 @@ def _pairs(items: list[str] | None, option: str, keys: tuple[str, ...]) -> dict[
 
 def family_request(args: argparse.Namespace) -> dict[str, Any]:
     """The family mapping (optim.family.spec.parse_family's input) from the command line."""
+    from cmrt.specfile import SpecReadError, read_spec_file
     from sim.errors import SpecError
 
-    path = Path(args.spec)
     try:
-        text = path.read_text()
-    except OSError as err:
-        raise SpecError(f"{path}: cannot read spec ({err.strerror})") from None
-    try:
-        spec = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (yaml.YAMLError, json.JSONDecodeError) as err:
-        raise SpecError(f"{path}: not valid YAML/JSON: {err}") from None
-    if not isinstance(spec, dict):
-        raise SpecError(f"{path}: a spec must be a mapping")
-    try:  # a character file beside the spec becomes its definition (cmrt.specfile)
-        spec = inline_character_file(spec, path.parent)
-    except CharacterFileError as err:
-        raise SpecError(f"{path}: {err}") from None
+        spec = read_spec_file(args.spec)
+    except SpecReadError as err:
+        raise SpecError(str(err)) from None
     overrides = _pairs(args.optimize, "--optimize", OPTIMIZE_KEYS)
     if overrides:
         block = dict(spec.get("optimize") or {})
@@ -263,7 +253,7 @@ def _request_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--k", type=int, default=3)
     r.add_argument("--reduced-start", choices=["neighbours", "centre"], default="neighbours")
     r.add_argument("--switch-threshold", type=float, metavar="X")
-    r.add_argument("--seed", type=int, default=1)
+    r.add_argument("--seed", type=int, default=DEFAULT_SEED)
     r.add_argument("--json", action="store_true", help="print the whole report as JSON")
 
 

@@ -25,6 +25,7 @@ from cmrt.cmdline import (
     quiet_plotting_warning,
     terminate_like_interrupt,
 )
+from cmrt.defaults import DEFAULT_SEED
 
 
 def _fmt(v: Any) -> str:
@@ -72,7 +73,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.compare and cmrt is None:
         return die("--compare: needs a CMRT (--cmrt RESULT.json) to compare with the flat "
                    "spline")
-    record = bool(args.trace or args.replay)
+    exports = _export_formats(args)
+    record = bool(args.trace or args.replay or exports)
     sim = Rollout(spec)
     t0 = time.perf_counter()
     try:
@@ -85,6 +87,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         ev.traces.to_csv(args.trace)
     if args.replay:
         _write_replay(args.replay, spec, ev, cmrt, source, flat)
+    if exports:
+        _write_exports(exports, spec, ev, args.fps)
     out = {"spec": spec.name, "cmrt": source, **ev.to_dict(), "wall_seconds": wall}
     if args.json:
         print(json.dumps(out))
@@ -93,6 +97,40 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                   "error_norm", "max_abs_error", "sim_seconds", "cpu_seconds"):
             print(f"{k:>14}: {_fmt(out[k])}")
     return 0
+
+
+def _export_formats(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """(path, format) of every --export, the format by the file's extension, checked with
+    --fps before anything is simulated (SimError: exit 2, nothing written)."""
+    from sim.export import FORMATS, ExportError, check_fps
+
+    out = []
+    for path in args.export or []:
+        fmt = Path(path).suffix.lower().lstrip(".")
+        if fmt not in FORMATS:
+            raise ExportError(f"--export {path}: the file's extension names the format, one "
+                              f"of {', '.join('.' + f for f in FORMATS)}")
+        out.append((path, fmt))
+    if args.fps is not None:
+        if not out:
+            raise ExportError("--fps: the frame rate of --export; give --export OUT.bvh or "
+                              "OUT.csv")
+        check_fps(args.fps)
+    return out
+
+
+def _write_exports(exports: list[tuple[str, str]], spec: Any, ev: Any, fps: float | None
+                   ) -> None:
+    """Write the clip as each --export asks (all texts made before any file is written)."""
+    from sim.export import DEFAULT_FPS, export_text
+
+    ch = spec.load_character()
+    rate = DEFAULT_FPS if fps is None else fps
+    texts = [(path, fmt, export_text(ch, ev, fmt, rate)) for path, fmt in exports]
+    for path, fmt, text in texts:
+        Path(path).write_text(text, encoding="utf-8")
+        print(f"export: {path} ({fmt.upper()}, {rate:g} fps, {len(text.encode()) / 1e3:.0f} "
+              "kB)", file=sys.stderr)
 
 
 def _write_replay(path: str, spec: Any, ev: Any, cmrt: Any, source: str, flat: Any) -> None:
@@ -318,12 +356,17 @@ def _add_spec_commands(sub: Any) -> None:
                    help="write a self-contained HTML replay of the clip (docs/replay.md)")
     s.add_argument("--compare", action="store_true",
                    help="with --replay and --cmrt: the flat-spline clip beside the CMRT's")
+    s.add_argument("--export", action="append", metavar="OUT.bvh|OUT.csv",
+                   help="write the clip's motion: BVH (the character's skeleton) or CSV (root, "
+                        "joint angles, CM, CP), by the extension; repeatable (docs/export.md)")
+    s.add_argument("--fps", type=float, metavar="HZ",
+                   help="frames per second of --export (default 60, from 1 to 1000)")
     s.set_defaults(func=cmd_simulate)
 
     o = sub.add_parser("optimize", help="optimise the CMRT of a task spec with CMA-ES")
     o.add_argument("spec")
     o.add_argument("--workers", type=int, default=2)
-    o.add_argument("--seed", type=int, default=1)
+    o.add_argument("--seed", type=int, default=DEFAULT_SEED)
     o.add_argument("--out", metavar="RESULT.json")
     o.add_argument("--checkpoint", metavar="PATH", help="default: the --out path with .ckpt")
     o.add_argument("--resume", action="store_true", help="continue from the checkpoint")

@@ -19,6 +19,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from cmrt.defaults import DEFAULT_SEED
+
 EXIT_JOB_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_UNREACHABLE = 3
@@ -295,7 +297,8 @@ def add_parsers(sub: Any) -> None:
                        description="POST a task spec (YAML or JSON) to the service as a job.")
     s.add_argument("spec")
     _url_arg(s)
-    s.add_argument("--seed", type=_seed, help="CMA-ES seed (default: the service's, 0)")
+    s.add_argument("--seed", type=_seed,
+                   help=f"CMA-ES seed (default: {DEFAULT_SEED}, as cmrt optimize)")
     s.add_argument("--name", help="job name (default: the spec's name)")
     s.add_argument("--wait", action="store_true",
                    help="follow the job with a progress bar until it ends, then its result")

@@ -27,9 +27,8 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-import yaml
 
-from cmrt.specfile import CharacterFileError, inline_character_file
+from cmrt.specfile import SpecReadError, read_spec_file
 
 #: Job states after which nothing changes any more.
 TERMINAL_STATUSES = ("converged", "stopped", "failed", "cancelled")
@@ -123,25 +122,12 @@ def split_detail(detail: str) -> tuple[str | None, str]:
 
 
 def load_spec_file(path: str | Path) -> dict[str, Any]:
-    """The task spec in a YAML or JSON file, as a dict (validation is the server's), with
-    its `character.file` read into `character.definition` (cmrt.specfile)."""
-    p = Path(path)
+    """The task spec in a YAML or JSON file, as a dict, with the blocks it takes from other
+    files inline (`cmrt.specfile`; validation is the server's)."""
     try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise SpecFileError(f"{p}: no such file") from None
-    except OSError as err:
-        raise SpecFileError(f"{p}: cannot read ({err.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise SpecFileError(f"{p}: not YAML/JSON ({str(err).splitlines()[0]})") from None
-    if not isinstance(data, dict):
-        raise SpecFileError(f"{p}: a task spec is a mapping, got {type(data).__name__}")
-    try:  # the service gets the character itself, never a file name
-        return inline_character_file(data, p.parent)
-    except CharacterFileError as err:
-        raise SpecFileError(f"{p}: {err}") from None
+        return read_spec_file(path)
+    except SpecReadError as err:
+        raise SpecFileError(str(err)) from None
 
 
 def _parse_time(value: str | None) -> datetime | None:

@@ -1,10 +1,24 @@
-"""What a command line does to a spec file before anyone parses it: a character given as a file
-(`character: {file: my_character.yaml}`, relative to the spec file) is read and put into the
-spec as its `definition`, so that what is simulated, stored or sent holds the character itself
-(a worker on another host never reads a user's file; the spec hash covers the definition).
+"""A task spec file as the command line reads it: YAML or JSON, with the blocks it takes from
+other files put inline.
 
-Shared by every reader of spec files (`sim.load_spec`, `cmrt.client`, `cmrt family`); the
-service never reads a file (a request naming one is refused by the spec's own check).
+    task: {type: motion, file: bend_motion.yaml, speed: 1.5}
+
+A block holding `file` (a path relative to the spec's folder) is replaced by the mapping that
+file holds, and the block's own fields (but `file`) are laid over it. The file may hold the
+block itself or a whole spec, whose block of the same name is taken (`cmrt motion import`
+writes whole specs). Files are not followed further: a block read from a file may not name
+another. What leaves the command line (a parsed spec, a request body) therefore carries
+everything itself: a stored job or a worker on another host never reads a user's file.
+
+A character is the other block a spec may take from a file, in its own way: the file holds a
+character definition (the schema of the shipped characters, docs/characters.md), which becomes
+the block's `definition`; the block's `model` (the character's name) is the file's name when
+the block gives none and the name fits:
+
+    character: {file: my_character.yaml}  ->  character: {model: my_character, definition: ...}
+
+Every file is untrusted: at most MAX_FILE_BYTES, a mapping where one is expected, and each
+problem is one `SpecReadError` naming the file and the field.
 """
 
 from __future__ import annotations
@@ -16,59 +30,106 @@ from typing import Any
 
 import yaml
 
-#: Largest character file read (bytes): the shipped ones are 5-9 kB.
-MAX_CHARACTER_FILE_BYTES = 1_000_000
-#: A character name (the spec's `character.model`) made from the file's name when it fits.
-_NAME = re.compile(r"[a-z0-9_]{1,64}")
+#: Largest spec or referenced file (bytes): a motion of the longest clip at the highest rate
+#: (4,800 frames of a dozen angles) is ~0.5 MB as YAML.
+MAX_FILE_BYTES = 8_000_000
+#: The blocks a spec may take from a file (`BLOCK: {file: PATH}`).
+FILE_BLOCKS = ("task",)
+
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+#: A character's name (a spec's `character.model`), as a file's name may give it.
+_CHARACTER_NAME = re.compile(r"[a-z0-9_]{1,64}")
 
 
-class CharacterFileError(ValueError):
-    """A character file that cannot be read; the message names `character.file`."""
+class SpecReadError(ValueError):
+    """A spec file, or a file it names, cannot be read; the message names the file (and the
+    field naming it)."""
 
 
-def inline_character_file(spec: Any, base: Path) -> Any:
-    """`spec` with `character.file` (relative to `base`, the spec file's folder) replaced by
-    the file's content as `character.definition`, and `character.model` the file's name when
-    the spec gives none and the name fits (`my_character.yaml` -> `my_character`). A spec
-    without `character.file` is returned as it is. CharacterFileError when the file is
-    missing, unreadable, too large or not a YAML/JSON mapping (its rules are the parser's)."""
-    if not isinstance(spec, dict) or not isinstance(spec.get("character"), dict):
-        return spec
-    character = dict(spec["character"])
-    if "file" not in character:
-        return spec
-    name = character.pop("file")
-    if "definition" in character:
-        raise CharacterFileError("character.file: give a file or a definition, not both")
-    if not isinstance(name, str) or not name or "\0" in name:
-        raise CharacterFileError(f"character.file: must be a file name, got {name!r}")
-    character["definition"] = _read_definition(base / name, name)
-    stem = Path(name).stem
-    if "model" not in character and _NAME.fullmatch(stem):
-        character["model"] = stem
-    return {**spec, "character": character}
-
-
-def _read_definition(path: Path, name: str) -> dict[str, Any]:
-    """The mapping in a YAML or JSON character file (module docstring)."""
-    where = f"character.file: {name}"
+def read_document(path: str | Path, what: str = "spec") -> Any:
+    """The YAML or JSON document in a file (JSON when its name ends in .json), bounded in size.
+    `what` names the file in messages (`cannot read spec`)."""
+    p = Path(path)
     try:
-        with path.open("rb") as f:
-            raw = f.read(MAX_CHARACTER_FILE_BYTES + 1)
+        with p.open("rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
-        raise CharacterFileError(f"{where}: no such file (relative to the spec file's "
-                                 f"folder, {path.parent})") from None
+        raise SpecReadError(f"{p}: cannot read {what} (no such file)") from None
     except OSError as err:
-        raise CharacterFileError(f"{where}: cannot read ({err.strerror})") from None
-    if len(raw) > MAX_CHARACTER_FILE_BYTES:
-        raise CharacterFileError(f"{where}: larger than {MAX_CHARACTER_FILE_BYTES} bytes")
+        raise SpecReadError(f"{p}: cannot read {what} ({err.strerror or err})") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise SpecReadError(f"{p}: larger than {MAX_FILE_BYTES} bytes")
     try:
         text = raw.decode("utf-8")
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (UnicodeDecodeError, yaml.YAMLError, json.JSONDecodeError) as err:
-        first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise CharacterFileError(f"{where}: not valid YAML/JSON ({first})") from None
+    except UnicodeDecodeError as err:
+        raise SpecReadError(f"{p}: not UTF-8 text (byte {err.start})") from None
+    try:
+        if p.suffix == ".json":
+            return json.loads(text)
+        return yaml.load(text, Loader=_LOADER)
+    except json.JSONDecodeError as err:
+        raise SpecReadError(f"{p}: not valid JSON: {err}") from None
+    except yaml.YAMLError as err:
+        raise SpecReadError(f"{p}: not valid YAML: {str(err).splitlines()[0]}") from None
+
+
+def read_spec_file(path: str | Path) -> dict[str, Any]:
+    """The spec in a file as a mapping, with its `FILE_BLOCKS` read from the files they name
+    (module docstring); not validated (that is `sim.spec.parse_spec`'s, or the server's)."""
+    p = Path(path)
+    doc = read_document(p)
+    if not isinstance(doc, dict):
+        raise SpecReadError(f"{p}: a spec must be a mapping, got {type(doc).__name__}")
+    for key in FILE_BLOCKS:
+        block = doc.get(key)
+        if isinstance(block, dict) and "file" in block:
+            doc[key] = _inlined(block, key, p)
+    character = doc.get("character")
+    if isinstance(character, dict) and "file" in character:
+        doc["character"] = _character(character, p)
+    return doc
+
+
+def _character(block: dict[str, Any], spec_path: Path) -> dict[str, Any]:
+    """The character block with the definition its `file` holds (module docstring)."""
+    where = f"{spec_path}: character.file"
+    ref = block["file"]
+    if not isinstance(ref, str) or not ref.strip() or "\0" in ref:
+        raise SpecReadError(f"{where}: must be a file name, got {ref!r}")
+    if "definition" in block:
+        raise SpecReadError(f"{where}: give a file or a definition, not both")
+    target = Path(ref) if Path(ref).is_absolute() else spec_path.parent / ref
+    try:
+        data = read_document(target, "the file `character.file` names")
+    except SpecReadError as err:
+        raise SpecReadError(f"{where}: {err}") from None
     if not isinstance(data, dict):
-        raise CharacterFileError(f"{where}: a character is a mapping (reference, root, "
-                                 f"segments, ...), got {type(data).__name__}")
-    return data
+        raise SpecReadError(f"{where}: {target} holds no character (a mapping of reference, "
+                            f"root, segments, ...), got {type(data).__name__}")
+    out = {k: v for k, v in block.items() if k != "file"}
+    out["definition"] = data
+    if "model" not in out and _CHARACTER_NAME.fullmatch(target.stem):
+        out["model"] = target.stem
+    return out
+
+
+def _inlined(block: dict[str, Any], key: str, spec_path: Path) -> dict[str, Any]:
+    """`block` with the mapping its `file` holds under its own fields."""
+    where = f"{spec_path}: {key}.file"
+    ref = block["file"]
+    if not isinstance(ref, str) or not ref.strip() or "\0" in ref:
+        raise SpecReadError(f"{where}: must be a file name, got {ref!r}")
+    target = Path(ref) if Path(ref).is_absolute() else spec_path.parent / ref
+    try:
+        data = read_document(target, f"the file `{key}.file` names")
+    except SpecReadError as err:
+        raise SpecReadError(f"{where}: {err}") from None
+    if isinstance(data, dict) and isinstance(data.get(key), dict):
+        data = data[key]  # a whole spec: its block
+    if not isinstance(data, dict):
+        raise SpecReadError(f"{where}: {target} holds no mapping (a {key} block or a spec with "
+                            f"one), got {type(data).__name__}")
+    if "file" in data:
+        raise SpecReadError(f"{where}: {target} names another file; files are not followed "
+                            f"further")
+    return {**data, **{k: v for k, v in block.items() if k != "file"}}

@@ -1,9 +1,14 @@
 #!/usr/bin/env bash
 # Idempotent set-up on a fresh Debian bookworm machine: PyODE from Debian, a .venv with the
-# project and its dev extras, and only the `ode` module of Debian's dist-packages visible in it.
+# project, and only the `ode` module of Debian's dist-packages visible in it.
+#   scripts/setup.sh          what `make run` needs: the product and its runtime dependencies
+#   scripts/setup.sh --test   what `make test` needs besides: the dev extras (pytest, ruff,
+#                             schemathesis, playwright, the generated-client tool) and Chromium
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
+TEST=0
+[ "${1:-}" = "--test" ] && TEST=1
 
 # A package registry that does not answer for a while (a name that does not resolve, a reset
 # connection) must not fail a fresh machine's set-up: each download step is retried after
@@ -30,8 +35,9 @@ if ! compgen -G "$ODE_SO_GLOB" >/dev/null; then
     DEBIAN_FRONTEND=noninteractive retry $SUDO apt-get install -y -qq python3-pyode libode-dev >/dev/null
 fi
 
-# The browser tests drive Debian's Chromium through playwright (a browser download fails here).
-if [ ! -x /usr/bin/chromium ]; then
+# The browser tests drive Debian's Chromium through playwright: playwright's own browser
+# download needs a host that package-only networks do not reach.
+if [ "$TEST" = 1 ] && [ ! -x /usr/bin/chromium ]; then
     echo "setup: installing Debian's chromium"
     SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
     retry $SUDO apt-get update -qq
@@ -54,7 +60,13 @@ STAMP=.venv/.installed
 if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ]; then
     echo "setup: installing the project into .venv"
     retry .venv/bin/pip install -q --upgrade pip
-    retry .venv/bin/pip install -q -e '.[dev]'
+    retry .venv/bin/pip install -q -e .
     touch "$STAMP"
+fi
+TEST_STAMP=.venv/.installed-test
+if [ "$TEST" = 1 ] && { [ ! -f "$TEST_STAMP" ] || [ pyproject.toml -nt "$TEST_STAMP" ]; }; then
+    echo "setup: installing the test extras into .venv"
+    retry .venv/bin/pip install -q -e '.[dev]'
+    touch "$TEST_STAMP"
 fi
 .venv/bin/python -c 'import ode, numba, cma' || { echo "setup: imports failed" >&2; exit 1; }

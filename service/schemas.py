@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from cmrt.defaults import DEFAULT_SEED
 from optim.family.spec import FamilySpec
 from service.links import SIGNABLE
 from sim.spec import TaskSpec
@@ -55,7 +56,8 @@ class JobRequest(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     spec: TaskSpec
-    seed: Annotated[int, Field(ge=0, lt=2**31)] | None = None
+    seed: Annotated[int, Field(ge=0, lt=2**31, description=(
+        f"CMA-ES seed; none: {DEFAULT_SEED}, the command line's default too"))] | None = None
     basis: Annotated[str, Field(max_length=64)] | None = None
     start: Literal["library", "cold"] = Field(
         "library", description="library: from the library's CMRT at the spec's task "
@@ -351,7 +353,7 @@ class RefineRequest(BaseModel):
     along: Annotated[str, Field(min_length=1, max_length=64)] | None = None
     basis: Annotated[str, Field(min_length=1, max_length=64)] | None = None
     max_evaluations: Annotated[int, Field(ge=1, le=1000)] = 150
-    seed: Annotated[int, Field(ge=0, lt=2**31)] = 0
+    seed: Annotated[int, Field(ge=0, lt=2**31)] = DEFAULT_SEED
     extrapolate: bool = False
 
 

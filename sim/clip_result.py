@@ -1,5 +1,6 @@
 """The result of simulating one clip: `Evaluation` (the scores and outcome) with its optional
-`Traces` (1 kHz) and replay `Frames`, all JSON-serialisable."""
+`Traces` and joint `States` (1 kHz) and replay `Frames`; all but the states JSON-serialisable
+by `to_dict`."""
 
 from __future__ import annotations
 
@@ -33,6 +34,19 @@ class Traces:
             [self.t, self.cp, self.support, self.cm, self.cm_ref, self.error, self.normal]
         )
         np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.6g")
+
+
+@dataclass
+class States:
+    """The character's generalised coordinates at the start of every 1 ms step (row k is the
+    state at t[k] = k x DT, before step k acts; Traces row k ends one step later).
+
+    q[k] = [root x, root y (m, the root segment's CoM), root angle, hinge angles (rad, child
+    relative to parent, the character's hinge order)], as `sim.physics.Physics.read_state`.
+    """
+
+    t: np.ndarray  # (n,) s
+    q: np.ndarray  # (n, ndof)
 
 
 @dataclass
@@ -101,11 +115,14 @@ class Evaluation:
     cmrt_released_at: float | None = None
     traces: Traces | None = field(default=None, repr=False)
     frames: Frames | None = field(default=None, repr=False)
+    #: The 1 kHz joint states (recorded with the traces; what `sim.export` writes).
+    states: States | None = field(default=None, repr=False)
 
     def to_dict(self, include_traces: bool = False) -> dict[str, Any]:
-        """JSON-ready; with include_traces also `traces` and `frames` (when recorded)."""
+        """JSON-ready; with include_traces also `traces` and `frames` (when recorded). The
+        1 kHz `states` are not part of it: `sim.export` writes them as BVH or CSV."""
         d = {f.name: getattr(self, f.name) for f in fields(self)
-             if f.name not in ("traces", "frames")}
+             if f.name not in ("traces", "frames", "states")}
         if include_traces and self.traces is not None:
             d["traces"] = self.traces.to_dict()
         if include_traces and self.frames is not None:

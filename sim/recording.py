@@ -1,7 +1,8 @@
 """Recording beside the rollout: the 1 kHz traces and the replay frames.
 
 `Recorder(n_steps, physics)`: `trace(...)` once per step (CP, support centre, CP error, CM, CM
-reference: `sim.clip_result.Traces`), `frame(...)` at the start of every FRAME_EVERY-th step
+reference: `sim.clip_result.Traces`, and the joint state q the step started from:
+`sim.clip_result.States`), `frame(...)` at the start of every FRAME_EVERY-th step
 (poses of every body and prop read from ODE, CM, CM reference, CP, support edges:
 `sim.clip_result.Frames`). Nothing here changes the simulation.
 """
@@ -12,7 +13,7 @@ import math
 
 import numpy as np
 
-from sim.clip_result import Frames, Traces
+from sim.clip_result import Frames, States, Traces
 from sim.physics import DT, Physics
 
 FRAME_RATE = 100.0  # Hz, replay frames
@@ -25,6 +26,7 @@ class Recorder:
         self.tr = {k: np.full(n_steps, np.nan) for k in ("t", "cp", "support", "error", "normal")}
         self.cm = np.full((n_steps, 2), np.nan)
         self.ref = np.full((n_steps, 2), np.nan)
+        self.q = np.full((n_steps, len(physics.q)), np.nan)
         self.frames = Frames(rate=1.0 / (FRAME_EVERY * DT), names=physics.pose_names(), t=[],
                              poses=[], cm=[], cm_ref=[], cp=[], support=[])
         self._last_cp = math.nan
@@ -41,6 +43,9 @@ class Recorder:
         tr["error"][k] = e
         self.cm[k] = c
         self.ref[k] = (c_ref[0], c[1] + c_ref[1])
+        # physics.q still holds the state read when step k began (read_state runs only when
+        # a step is observed): the state at t - DT, the one the CM c was computed from.
+        self.q[k] = self.physics.q
         self._last_cp = cp
 
     def frame(self, t: float, c: np.ndarray, c_ref: tuple[float, float],
@@ -54,9 +59,10 @@ class Recorder:
         f.cp.append(float(self._last_cp))
         f.support.append((float(support[0]), float(support[1])))
 
-    def result(self, n: int) -> tuple[Traces, Frames]:
+    def result(self, n: int) -> tuple[Traces, Frames, States]:
         tr = self.tr
         traces = Traces(t=tr["t"][:n], cp=tr["cp"][:n], support=tr["support"][:n],
                         cm=self.cm[:n], cm_ref=self.ref[:n], error=tr["error"][:n],
                         normal=tr["normal"][:n])
-        return traces, self.frames
+        states = States(t=np.arange(n) * DT, q=self.q[:n])
+        return traces, self.frames, states

@@ -132,7 +132,8 @@ class Rollout:
         _, p0, _ = forward_kinematics(self.q0, self.arrays.parent, self.arrays.a_par,
                                       self.arrays.a_chi)
         self.cm0 = (ch.mass[:, None] * p0).sum(axis=0) / ch.mass.sum()
-        self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self.task.motions)
+        self.trajectory = PoseTrajectory(self.q0[ROOT_DOF:], self.task.motions,
+                                         self.task.tracks)
         self.controller: Controller = build_controller(
             spec.controller, ControllerContext(spec, ch, self.arrays, self.trajectory, DT,
                                                FRICTION_MU, self.q0.copy()))
@@ -435,9 +436,9 @@ class _Clip:
         penalty = task.penalty(phys, math.sqrt(r.steps) * r.support_length)
         if penalty:
             objective += penalty
-        out_traces = out_frames = None
+        out_traces = out_frames = out_states = None
         if self.rec is not None:
-            out_traces, out_frames = self.rec.result(self.k_done)
+            out_traces, out_frames, out_states = self.rec.result(self.k_done)
         k_done = self.k_done
         return Evaluation(
             objective=objective, fell=fell, fall_time=fall_time, fall_reason=self.fall_reason,
@@ -446,7 +447,7 @@ class _Clip:
             contact_steps=self.contact_steps, fall_direction=self.direction,
             task_success=task.success(phys), task_penalty=penalty,
             cmrt_released_at=None if self.releasable is None else self.releasable.released_at,
-            traces=out_traces, frames=out_frames,
+            traces=out_traces, frames=out_frames, states=out_states,
         )
 
 

@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Annotated, Any, Union
 
 import annotated_types
-import yaml
 from pydantic import (
     BaseModel,
     Discriminator,
@@ -54,7 +53,7 @@ from pydantic import (
 from pydantic.fields import FieldInfo
 
 from cmrt.canonical import canonical_json, text_hash
-from cmrt.specfile import CharacterFileError, inline_character_file
+from cmrt.specfile import SpecReadError, read_spec_file
 from sim.character import (
     DATA_DIR,
     DEFAULT_CHARACTER,
@@ -69,7 +68,7 @@ from sim.character_rules import HEIGHT_RANGE, MASS_RANGE
 from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
 from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
-from sim.specbase import StrictModel, count, quantity
+from sim.specbase import Samples, StrictModel, count, quantity
 from sim.tasks import TASK_TYPES
 from sim.tasks.base import MAX_CLIP_SECONDS
 
@@ -476,22 +475,13 @@ def parse_spec(data: Any, source: str = "<spec>") -> TaskSpec:
 
 
 def load_spec(path: str | Path) -> TaskSpec:
-    """Read a YAML or JSON spec file (with its `character.file`, if any, inlined)."""
-    p = Path(path)
+    """Read a YAML or JSON spec file, with the blocks it takes from other files inline
+    (`cmrt.specfile`)."""
     try:
-        text = p.read_text()
-    except OSError as err:
-        raise SpecError(f"{p}: cannot read spec ({err.strerror})") from None
-    try:
-        data = json.loads(text) if p.suffix == ".json" else yaml.safe_load(text)
-    except (yaml.YAMLError, json.JSONDecodeError) as err:
-        kind = "JSON" if p.suffix == ".json" else "YAML"
-        raise SpecError(f"{p}: not valid {kind}: {err}") from None
-    try:  # a character file beside the spec becomes the spec's definition (cmrt.specfile)
-        data = inline_character_file(data, p.parent)
-    except CharacterFileError as err:
-        raise SpecError(f"{p}: {err}") from None
-    return parse_spec(data, str(p))
+        data = read_spec_file(path)
+    except SpecReadError as err:
+        raise SpecError(str(err)) from None
+    return parse_spec(data, str(path))
 
 
 # ---- the canonical form ----------------------------------------------------------------------
@@ -609,6 +599,8 @@ def _walk(value: Any, ann: Any, meta: Sequence[Any],
     elif isinstance(value, list | tuple):
         args = typing.get_args(_strip_optional(ann))
         item = args[0] if args else Any
+        if any(isinstance(m, Samples) for m in meta):
+            value = value[:1]  # one rule for every entry: the first stands for them all
         for i, v in enumerate(value):
             yield from _walk(v, item, (), (*path, i))
 
@@ -629,5 +621,6 @@ def _strip_optional(ann: Any) -> Any:
 
 def numeric_fields(spec: TaskSpec) -> list[NumericField]:
     """Every number the spec sets, and every optional number it leaves out (value None), with
-    its range: the fields of its blocks, the entries of its pose targets and gain maps."""
+    its range: the fields of its blocks, the entries of its pose targets and gain maps, and of
+    a samples list (a motion's frames, `sim.specbase.SAMPLES`) its first entry's."""
     return list(_walk(spec, TaskSpec, (), ()))

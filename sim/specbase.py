@@ -43,6 +43,18 @@ def _check_text(value: Any) -> None:
             _check_text(v)
 
 
+class Samples:
+    """Marks a list field whose entries all follow one rule (a motion's frames): the walk over a
+    spec's numbers (`sim.spec.numeric_fields`) takes its first entry to stand for them all."""
+
+    def __repr__(self) -> str:
+        return "SAMPLES"
+
+
+#: The marker of a samples list (`Annotated[list[...], Field(...), SAMPLES]`).
+SAMPLES = Samples()
+
+
 class StrictModel(BaseModel):
     """Frozen, strict, finite, no extra fields, no control characters in text."""
 

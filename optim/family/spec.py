@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, PrivateAttr, ValidationError, model_validator
 
+from cmrt.defaults import DEFAULT_SEED
 from optim.errors import OptimError
 from sim.errors import SpecError
 from sim.spec import OptimizeConfig, TaskSpec, parse_spec
@@ -74,7 +75,7 @@ class FamilySpec(StrictModel):
     leave_out: Annotated[list[float], Field(max_length=200)] = []
     # A reduced run searches k coordinates: CMA-ES needs at least 2 (optim.cmaes.MIN_DIMENSION).
     k: Annotated[int, Field(ge=2, le=16)] = 3
-    seed: Annotated[int, Field(ge=0, lt=2**31)] = 1
+    seed: Annotated[int, Field(ge=0, lt=2**31)] = DEFAULT_SEED
     reduced_start: Literal["neighbours", "centre"] = "neighbours"
     switch_threshold: Annotated[float, Field(gt=0.0, le=1.0)] = SWITCH_THRESHOLD
 

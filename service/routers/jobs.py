@@ -11,6 +11,7 @@ from application import jobs
 from application.admission import BudgetExceeded
 from application.bases import UnusableBasisError
 from application.jobs import START_CHOICES
+from cmrt.defaults import DEFAULT_SEED
 from optim.spline import decode, sample_curve
 from service import schemas
 from service.body import read_json
@@ -82,7 +83,7 @@ async def submit_job(
         raise HttpError(422, str(err)) from None
     try:  # its basis, its budget against the server's ceiling, its start (application.jobs)
         job, budget = jobs.submit_job(svc.repo, svc.settings, canonical,
-                                      seed=0 if seed is None else seed, basis_id=basis,
+                                      seed=DEFAULT_SEED if seed is None else seed, basis_id=basis,
                                       start=start)
     except (UnusableBasisError, BudgetExceeded) as err:
         raise HttpError(422, str(err)) from None

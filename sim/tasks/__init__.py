@@ -9,6 +9,7 @@ from __future__ import annotations
 from sim.tasks.base import Task, TaskConfig
 from sim.tasks.catch import CatchConfig
 from sim.tasks.domino import DominoConfig
+from sim.tasks.motion import MotionConfig
 from sim.tasks.pose_change import PoseChangeConfig
 from sim.tasks.pull import PullConfig
 from sim.tasks.punch import PunchConfig
@@ -23,6 +24,7 @@ TASK_TYPES: dict[str, type[TaskConfig]] = {
     "push": PushConfig,
     "pose_change": PoseChangeConfig,
     "sequence": SequenceConfig,
+    "motion": MotionConfig,
     "catch": CatchConfig,
     "punch": PunchConfig,
     "domino": DominoConfig,

@@ -17,6 +17,8 @@ Contract of a `TaskConfig`:
 Contract of a `Task` (one per simulator; `reset` before each run):
   * `props`: the PropDefs the physics must hold (built once per simulator).
   * `motions`: reference pose changes (start s, duration s, {hinge index: offset rad}).
+  * `tracks`: dense reference offsets (`sim.trajectory.FrameTrack`: frames at a constant
+    rate, splined), added to the standing pose and the motions' targets.
   * `initial_pose`: {hinge index: offset rad} from the standing pose that the clip starts in
     and holds (e.g. hands held out); the standing lean is found with it.
   * `reset(physics)`; `before_step(physics, t)` (events: external forces, a throw) runs after
@@ -40,7 +42,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from sim.props import PropDef
 from sim.specbase import StrictModel, quantity
-from sim.trajectory import MotionDef
+from sim.trajectory import FrameTrack, MotionDef
 
 if TYPE_CHECKING:
     from sim.character import Character
@@ -138,6 +140,10 @@ class Task:
 
     @property
     def motions(self) -> list[MotionDef]:
+        return []
+
+    @property
+    def tracks(self) -> list[FrameTrack]:
         return []
 
     @property

@@ -32,9 +32,10 @@ def test_a_bad_character_file_exits_2_naming_the_field(capsys, tmp_path):
     spec = yaml.safe_load((EXAMPLES / "fast_bend_my_character.yaml").read_text())
     (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
     cases = [
-        (None, "character.file: my_character.yaml: no such file"),
-        ("[1, 2", "character.file: my_character.yaml: not valid YAML/JSON"),
-        ("- a list", "character.file: my_character.yaml: a character is a mapping"),
+        (None, "my_character.yaml: cannot read the file `character.file` names (no such "
+               "file)"),
+        ("[1, 2", "my_character.yaml: not valid YAML"),
+        ("- a list", "my_character.yaml holds no character"),
         ("reference: {height: 1.75, mass: 70}\nroot: pelvis\nsegments: []\n",
          "character.definition: segments: must be a list of at least two segments"),
     ]
@@ -47,12 +48,13 @@ def test_a_bad_character_file_exits_2_naming_the_field(capsys, tmp_path):
         assert main(["simulate", str(tmp_path / "spec.yaml")]) == 2, message
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err, err
+        assert "character." in err.partition(": error: ")[2], err  # the field is named
         assert err.count("\n") == 1, err  # one line
 
 
 def test_the_client_sends_the_definition_never_the_file():
     spec = load_spec_file(EXAMPLES / "fast_bend_my_character.yaml")
-    assert "file" not in spec["character"]
+    assert "file" not in spec["character"] and "file" not in spec["task"]
     assert spec["character"]["model"] == "my_character"
     assert spec["character"]["definition"] == yaml.safe_load(
         (EXAMPLES / "my_character.yaml").read_text())

@@ -182,12 +182,12 @@ def test_names_and_files_at_the_boundary():
 def test_the_command_line_reads_the_file_beside_the_spec(tmp_path):
     spec = _spec(BEND, {"file": "chars/mine.yaml"})
     (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
-    with pytest.raises(SpecError, match=r"spec\.yaml: character\.file: chars/mine\.yaml: no "
-                                        r"such file"):
+    with pytest.raises(SpecError, match=r"spec\.yaml: character\.file: .*chars/mine\.yaml: "
+                                        r"cannot read .*\(no such file\)"):
         load_spec(tmp_path / "spec.yaml")
     (tmp_path / "chars").mkdir()
     (tmp_path / "chars" / "mine.yaml").write_text("segments: [unclosed")
-    with pytest.raises(SpecError, match=r"character\.file: chars/mine\.yaml: not valid YAML"):
+    with pytest.raises(SpecError, match=r"character\.file: .*chars/mine\.yaml: not valid YAML"):
         load_spec(tmp_path / "spec.yaml")
     bad = copy.deepcopy(MINE)
     bad["segments"][0]["mass"] = -1
