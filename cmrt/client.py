@@ -247,6 +247,20 @@ class Job:
             out["cmrt"] = self.client.cmrt(d["cmrt_id"])
         return out
 
+    def motion(self, fmt: str = "bvh", fps: float | None = None,
+               out: str | Path | None = None) -> str:
+        """The best candidate so far as a motion file (GET /jobs/{id}/motion.bvh or .csv,
+        docs/export.md): `fmt` "bvh" (the character's skeleton) or "csv" (root, joint angles,
+        CM, CP), at `fps` frames per second (the service's default 60 when None). The text;
+        also written to `out` when given. NotFoundError while the job has no candidate."""
+        if fmt not in ("bvh", "csv"):
+            raise ValueError(f"fmt: must be 'bvh' or 'csv', got {fmt!r}")
+        params = {} if fps is None else {"fps": fps}
+        text = self.client._text("GET", f"/jobs/{self.id}/motion.{fmt}", params=params)
+        if out is not None:
+            Path(out).write_text(text, encoding="utf-8")
+        return text
+
     def progress(self) -> Progress:
         """One look: the job's body and the generations since the last look."""
         d = self.refresh()
@@ -366,6 +380,21 @@ class Client:
     # ---- transport ---------------------------------------------------------------------
     def _request(self, method: str, path: str, *, params: Mapping[str, Any] | None = None,
                  json_body: Any = None, timeout: float | None = None) -> Any:
+        """The JSON answer of a request (ApiError and its kinds for a 4xx or 5xx)."""
+        r = self._send(method, path, params=params, json_body=json_body, timeout=timeout)
+        try:
+            return r.json()
+        except ValueError:
+            raise ClientError(f"{method} {path}: the answer is not JSON (HTTP "
+                              f"{r.status_code}, {r.headers.get('content-type')}); is "
+                              f"{self.url} a CMRT service?") from None
+
+    def _text(self, method: str, path: str, *, params: Mapping[str, Any] | None = None) -> str:
+        """The text answer of a request (a file the service writes: a motion)."""
+        return self._send(method, path, params=params).text
+
+    def _send(self, method: str, path: str, *, params: Mapping[str, Any] | None = None,
+              json_body: Any = None, timeout: float | None = None) -> httpx.Response:
         kwargs: dict[str, Any] = {}
         if params:
             kwargs["params"] = {k: _query_value(v) for k, v in params.items() if v is not None}
@@ -392,12 +421,7 @@ class Client:
                                      "running there? (--url / CMRT_URL)") from None
         if r.status_code >= 400:
             raise _api_error(r, method, path)
-        try:
-            return r.json()
-        except ValueError:
-            raise ClientError(f"{method} {path}: the answer is not JSON (HTTP "
-                              f"{r.status_code}, {r.headers.get('content-type')}); is "
-                              f"{self.url} a CMRT service?") from None
+        return r
 
     # ---- endpoints ---------------------------------------------------------------------
     def health(self) -> dict[str, Any]:

@@ -561,13 +561,15 @@ REPLAY_EXAMPLE: dict[str, Any] = {"spec": JOB_EXAMPLE, "cmrt": None, "compare": 
 
 # ---- signed links (service.routers.links, service.links) --------------------------------------
 class LinkRequest(BaseModel):
-    """A replay page to open without the token header."""
+    """A replay page or a job's motion file to open without the token header."""
 
     model_config = ConfigDict(extra="forbid")
     path: str = Field(max_length=128,
                       description="`/jobs/{id}/replay` or `/cmrts/{id}/replay` of an existing "
-                                  "job or library CMRT (id: 1-64 of A-Z a-z 0-9 . _ ~ -)",
-                      json_schema_extra={"pattern": f"^{SIGNABLE.pattern}$"})
+                                  "job or library CMRT, or `/jobs/{id}/motion.bvh` or "
+                                  "`/jobs/{id}/motion.csv` of an existing job (id: 1-64 of "
+                                  "A-Z a-z 0-9 . _ ~ -)",
+                      json_schema_extra={"pattern": f"^(?:{SIGNABLE.pattern})$"})
 
 
 class LinkOut(BaseModel):

@@ -110,6 +110,15 @@ def test_job_page_of_a_finished_job(server, page):
     assert float(legend[4]) == pytest.approx(job["best_objective"], rel=1e-4)  # best so far
     final = page.locator("#evals tbody tr").first.locator("td").all_text_contents()
     assert final[:3] == ["final", "2", "2"]  # the closing re-evaluation: best and flat spline
+    # The best candidate's motion files download from the page (docs/export.md).
+    for fmt, head in (("bvh", "HIERARCHY\nROOT pelvis\n"), ("csv", "t,root_x,root_y,")):
+        assert page.get_attribute(f"#motion-{fmt}", "href") == f"/jobs/{job_id}/motion.{fmt}"
+        with page.expect_download(timeout=LOAD_TIMEOUT_MS) as dl:
+            page.click(f"#motion-{fmt}")
+        text = Path(dl.value.path()).read_text()
+        assert dl.value.suggested_filename == f"bend_0.3-{job_id}.{fmt}"
+        assert text.startswith(head)
+        assert text == httpx.get(f"{server.url}/jobs/{job_id}/motion.{fmt}", timeout=60).text
     assert page.errors == []
 
 

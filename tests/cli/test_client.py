@@ -137,6 +137,21 @@ def test_submit_wait_generations_best(service):
     assert again["best_params"] == final["best_params"]
 
 
+def test_a_jobs_motion_files(service, tmp_path):
+    """Job.motion: the best candidate's clip as the service writes it (BVH, CSV at a rate),
+    kept in a file when asked; a bad rate is the server's 422 naming the field."""
+    client, _url, _tmp, done = service
+    job = client.job(done[0.3]["id"])
+    bvh = job.motion(out=tmp_path / "m.bvh")
+    # a 0.8 s clip: frames at 0 .. 0.783 s (60 fps), 0 .. 0.7 s (10 fps)
+    assert bvh.startswith("HIERARCHY\nROOT pelvis\n") and "\nFrames: 48\n" in bvh
+    assert (tmp_path / "m.bvh").read_text() == bvh
+    table = job.motion("csv", fps=10)
+    assert table.startswith("t,root_x,root_y,root_angle,") and table.count("\n") == 1 + 8
+    with pytest.raises(InvalidRequestError, match="fps: "):
+        job.motion("csv", fps=5000)
+
+
 def test_jobs_filters(service):
     client, _url, _tmp, done = service
     ids = {j.id for j in client.jobs(family="bend", limit=200)}
