@@ -28,7 +28,7 @@ from typing import Any
 
 import httpx
 
-from cmrt.specfile import SpecReadError, read_spec_file
+from cmrt.specfile import SpecReadError, read_document, read_spec_file
 
 #: Job states after which nothing changes any more.
 TERMINAL_STATUSES = ("converged", "stopped", "failed", "cancelled")
@@ -528,6 +528,29 @@ class Client:
         job.answer = out["answer"]
         job.start = out["start"]
         return job
+
+    def add_character(self, name: str,
+                      definition: Mapping[str, Any] | str | Path) -> dict[str, Any]:
+        """POST /characters: keep a character definition (a mapping, or the path of a YAML or
+        JSON character file) under `name`; specs sent to the service may then name it as
+        their `character.model`. InvalidRequestError names the field of a bad definition,
+        ConflictError a taken name (a shipped or stored character's)."""
+        if isinstance(definition, (str, Path)):
+            try:
+                definition = read_document(definition, "character")
+            except SpecReadError as err:
+                raise SpecFileError(str(err)) from None
+        return self._request("POST", "/characters",
+                             json_body={"name": name, "definition": definition})
+
+    def characters(self, limit: int = 50, offset: int = 0) -> dict[str, Any]:
+        """GET /characters: the stored characters by name (`items`, each with its `summary`)
+        and the shipped ones' names (`shipped`)."""
+        return self._request("GET", "/characters", params={"limit": limit, "offset": offset})
+
+    def character(self, name: str) -> dict[str, Any]:
+        """GET /characters/{name}: a stored or shipped character with its definition."""
+        return self._request("GET", f"/characters/{name}")
 
     def basis(self, family: str, k: int) -> dict[str, Any]:
         """POST /bases: a PCA basis of the family's library CMRTs."""

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sim import character_rules as rules
+import sim.character_rules as rules
 from sim.errors import CharacterError
 
 DATA_DIR = Path(__file__).parent / "data"
@@ -418,6 +418,13 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
 def shipped_characters() -> list[str]:
     """The names of the characters shipped in `sim/data/`."""
     return sorted(p.stem for p in DATA_DIR.glob("*.yaml"))
+
+
+def shipped_definition(name: str) -> dict[str, Any]:
+    """The definition (the file's mapping) of shipped character `name` (shipped_characters)."""
+    if name not in shipped_characters():
+        raise CharacterError(f"unknown character {name!r}")
+    return yaml.safe_load((DATA_DIR / f"{name}.yaml").read_text())
 
 
 def definition_reference(data: Any) -> tuple[float, float] | None:

@@ -461,3 +461,30 @@ def test_a_read_on_a_connection_the_server_closed_is_sent_again():
             assert seen == ["/jobs"]
     finally:
         srv.shutdown()
+
+
+def test_characters_add_list_show_and_a_job_naming_one(service, tmp_path):
+    """`cmrt characters add/list/show` on a real service, then a spec naming the stored
+    character: the job holds its definition; a bad file exits 2 naming the field."""
+    client, url, _tmp, _done = service
+    mine = ROOT / "examples" / "my_character.yaml"
+    p = _cli(url, "characters", "add", str(mine), "--name", "client_mine")
+    assert p.returncode == 0, p.stderr
+    assert "character client_mine stored" in p.stdout
+    again = _cli(url, "characters", "add", str(mine), "--name", "client_mine")
+    assert again.returncode == 2 and "name: a character named 'client_mine' exists" in \
+        again.stderr
+    listed = _cli(url, "characters", "list")
+    assert listed.returncode == 0 and re.search(r"^client_mine +stored +1\.793 +74\.97 +13 ",
+                                                listed.stdout, re.M), listed.stdout
+    shown = json.loads(_cli(url, "characters", "show", "client_mine", "--json").stdout)
+    assert shown["definition"] == yaml.safe_load(mine.read_text())
+    bad = yaml.safe_load(mine.read_text())
+    bad["segments"][2]["mass"] = 1e-9
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+    q = _cli(url, "characters", "add", str(tmp_path / "bad.yaml"), "--name", "bad_one")
+    assert q.returncode == 2 and "definition: segments[2].mass: must be at least 0.1 kg" in \
+        q.stderr and "Traceback" not in q.stderr
+    assert client.characters()["total"] == 1
+    job = client.submit({**bend("stored_char"), "character": {"model": "client_mine"}})
+    assert client.job(job.id).data["spec"]["character"]["definition"] == shown["definition"]

@@ -75,3 +75,59 @@ def test_bad_definitions_are_refused_naming_the_field_and_nothing_is_stored(clie
     assert "task.type: a catch task needs a character with hands" in r.json()["detail"]
     assert "character.definition.hands" in r.json()["detail"]
     assert client.get("/jobs").json()["total"] == 0
+
+
+# ---- /characters --------------------------------------------------------------------------
+def test_add_list_and_show_stored_and_shipped_characters(client):
+    r = client.post("/characters", json={"name": "mine", "definition": MINE})
+    assert r.status_code == 201, r.text
+    out = r.json()
+    assert r.headers["location"] == out["url"] and out["url"].endswith("/characters/mine")
+    assert out["source"] == "stored" and out["definition"] == MINE
+    assert out["summary"]["mass"] == pytest.approx(74.97)
+    assert out["summary"]["hands"] == ["hand_r", "hand_l"] and out["summary"]["torso"] == "trunk"
+    page = client.get("/characters").json()
+    assert [c["name"] for c in page["items"]] == ["mine"] and page["total"] == 1
+    assert page["items"][0]["definition"] is None  # the list holds summaries
+    assert {"humanoid", "lion", "sumo"} <= set(page["shipped"])
+    assert client.get("/characters/mine").json()["definition"] == MINE
+    shipped = client.get("/characters/humanoid").json()
+    assert shipped["source"] == "shipped" and shipped["summary"]["segments"] == 13
+    assert client.get("/characters/nobody").status_code == 404
+
+
+def test_taken_names_are_409_and_bad_definitions_422_storing_nothing(client):
+    assert client.post("/characters", json={"name": "mine", "definition": MINE}
+                       ).status_code == 201
+    r = client.post("/characters", json={"name": "mine", "definition": MINE})
+    assert r.status_code == 409 and r.json()["detail"] == "name: a character named 'mine' exists"
+    r = client.post("/characters", json={"name": "humanoid", "definition": MINE})
+    assert r.status_code == 409 and "'humanoid' is a shipped character" in r.json()["detail"]
+    for mutate, message in _mutations():
+        d = copy.deepcopy(MINE)
+        mutate(d)
+        r = client.post("/characters", json={"name": "bad", "definition": d})
+        assert r.status_code == 422, (message, r.text)
+        assert r.json()["detail"].startswith(f"definition: {message}"), r.json()["detail"]
+    for body, field in (({"name": "Bad Name", "definition": MINE}, "name"),
+                        ({"name": "x", "definition": [1]}, "definition"),
+                        ({"name": "x"}, "definition")):
+        r = client.post("/characters", json=body)
+        assert r.status_code == 422 and r.json()["detail"].startswith(f"{field}: "), r.text
+    assert client.get("/characters").json()["total"] == 1
+
+
+def test_a_spec_naming_a_stored_character_gets_its_definition(client):
+    client.post("/characters", json={"name": "mine", "definition": MINE})
+    r = client.post("/jobs", json={"spec": _bend({"model": "mine", "height": 1.8})})
+    assert r.status_code == 202, r.text
+    spec = client.get(f"/jobs/{r.json()['id']}").json()["spec"]
+    assert spec["character"] == {"model": "mine", "definition": MINE, "height": 1.8,
+                                 "mass": 74.97}
+    # the stored job is the inline spec: same document
+    inline = client.post("/jobs", json={"spec": _bend({"model": "mine", "height": 1.8,
+                                                       "definition": MINE})})
+    assert client.get(f"/jobs/{inline.json()['id']}").json()["spec"] == spec
+    r = client.post("/jobs", json={"spec": _bend({"model": "nobody"})})
+    assert r.status_code == 422
+    assert r.json()["detail"].startswith("spec: character.model: unknown character 'nobody'")
