@@ -6,7 +6,6 @@ record without parsing its spec."""
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -14,6 +13,8 @@ from typing import Any
 import numpy as np
 
 from optim.errors import InterpolationError, ParamsError
+from optim.family.checks import parameter_distance
+from optim.family.spec import SWITCH_DISTANCE
 from optim.interpolate import bracket, interpolate
 from optim.spline import CmrtSpline, decode, encode, sample_curve
 from sim.spec import TaskSpec, parse_spec
@@ -22,11 +23,6 @@ from store import CmrtEntry, CmrtKey, CmrtRecord, Repository
 #: Largest number of library CMRTs read for one interpolation or basis.
 MAX_MEMBERS = 10_000
 
-#: RMS distance (spline parameters, box units in [0, 1]) between two neighbouring members above
-#: which they are taken for two strategies and not averaged. Members of one strategy lie
-#: 0.02-0.13 apart in the stored families (sumo box, bend speed, the domino's chains, the lion's
-#: tire at 28-32 kg); the switches found there lie 0.21-0.35 apart (docs/families.md).
-SWITCH_DISTANCE = 0.15
 
 
 def nearer(recs: list[CmrtRecord], key: str, value: float) -> CmrtRecord:
@@ -36,8 +32,7 @@ def nearer(recs: list[CmrtRecord], key: str, value: float) -> CmrtRecord:
 
 def params_distance(a: CmrtRecord, b: CmrtRecord) -> float:
     """RMS distance of two library CMRTs' spline parameters (box units); inf for two layouts."""
-    x, y = np.asarray(a.params, dtype=float), np.asarray(b.params, dtype=float)
-    return float(np.sqrt(np.mean((x - y) ** 2))) if x.shape == y.shape else math.inf
+    return parameter_distance(a.params, b.params)
 
 
 #: Splines kept by their data: the library's answers build the same few members' and

@@ -28,6 +28,7 @@ from typing import Any
 
 import yaml
 
+from cmrt.specfile import read_spec_file
 from optim.result import OptimizationResult
 from sim.controllers.momentum import MomentumController
 from sim.ipm import capture_point
@@ -78,11 +79,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--task", nargs="*", default=[], help="KEY=VALUE task fields (numbers)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    paths = [Path(p) for p in args.specs] or sorted(EXAMPLES.glob("*.yaml"))
+    paths = [Path(p) for p in args.specs] or sorted(  # not a user's character file
+        p for p in EXAMPLES.glob("*.yaml") if "segments" not in yaml.safe_load(p.read_text()))
     cmrt = OptimizationResult.load(args.cmrt).spline() if args.cmrt else None
     out = []
     for path in paths:
-        data = yaml.safe_load(path.read_text())
+        data = read_spec_file(path)
         for kv in args.task:
             key, value = kv.split("=", 1)
             data["task"][key] = float(value)

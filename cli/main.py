@@ -333,12 +333,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_result_commands(sub)  # pca, interpolate
     _add_service_commands(sub)  # serve, driver, worker
 
+    from cli.characters import add_parsers as add_character_parsers
     from cli.family import add_parsers as add_family_parsers
     from cli.motion import add_parsers as add_motion_parsers
     from cli.remote import add_parsers
 
     add_parsers(sub)  # submit, jobs, watch, library
     add_family_parsers(sub)  # family run
+    add_character_parsers(sub)  # characters list | add | show
     add_motion_parsers(sub)  # motion import
     return p
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import httpx
 
-from cmrt.specfile import SpecReadError, read_spec_file
+from cmrt.specfile import SpecReadError, read_document, read_spec_file
 
 #: Job states after which nothing changes any more.
 TERMINAL_STATUSES = ("converged", "stopped", "failed", "cancelled")
@@ -247,6 +247,20 @@ class Job:
             out["cmrt"] = self.client.cmrt(d["cmrt_id"])
         return out
 
+    def motion(self, fmt: str = "bvh", fps: float | None = None,
+               out: str | Path | None = None) -> str:
+        """The best candidate so far as a motion file (GET /jobs/{id}/motion.bvh or .csv,
+        docs/export.md): `fmt` "bvh" (the character's skeleton) or "csv" (root, joint angles,
+        CM, CP), at `fps` frames per second (the service's default 60 when None). The text;
+        also written to `out` when given. NotFoundError while the job has no candidate."""
+        if fmt not in ("bvh", "csv"):
+            raise ValueError(f"fmt: must be 'bvh' or 'csv', got {fmt!r}")
+        params = {} if fps is None else {"fps": fps}
+        text = self.client._text("GET", f"/jobs/{self.id}/motion.{fmt}", params=params)
+        if out is not None:
+            Path(out).write_text(text, encoding="utf-8")
+        return text
+
     def progress(self) -> Progress:
         """One look: the job's body and the generations since the last look."""
         d = self.refresh()
@@ -366,6 +380,21 @@ class Client:
     # ---- transport ---------------------------------------------------------------------
     def _request(self, method: str, path: str, *, params: Mapping[str, Any] | None = None,
                  json_body: Any = None, timeout: float | None = None) -> Any:
+        """The JSON answer of a request (ApiError and its kinds for a 4xx or 5xx)."""
+        r = self._send(method, path, params=params, json_body=json_body, timeout=timeout)
+        try:
+            return r.json()
+        except ValueError:
+            raise ClientError(f"{method} {path}: the answer is not JSON (HTTP "
+                              f"{r.status_code}, {r.headers.get('content-type')}); is "
+                              f"{self.url} a CMRT service?") from None
+
+    def _text(self, method: str, path: str, *, params: Mapping[str, Any] | None = None) -> str:
+        """The text answer of a request (a file the service writes: a motion)."""
+        return self._send(method, path, params=params).text
+
+    def _send(self, method: str, path: str, *, params: Mapping[str, Any] | None = None,
+              json_body: Any = None, timeout: float | None = None) -> httpx.Response:
         kwargs: dict[str, Any] = {}
         if params:
             kwargs["params"] = {k: _query_value(v) for k, v in params.items() if v is not None}
@@ -392,12 +421,7 @@ class Client:
                                      "running there? (--url / CMRT_URL)") from None
         if r.status_code >= 400:
             raise _api_error(r, method, path)
-        try:
-            return r.json()
-        except ValueError:
-            raise ClientError(f"{method} {path}: the answer is not JSON (HTTP "
-                              f"{r.status_code}, {r.headers.get('content-type')}); is "
-                              f"{self.url} a CMRT service?") from None
+        return r
 
     # ---- endpoints ---------------------------------------------------------------------
     def health(self) -> dict[str, Any]:
@@ -504,6 +528,29 @@ class Client:
         job.answer = out["answer"]
         job.start = out["start"]
         return job
+
+    def add_character(self, name: str,
+                      definition: Mapping[str, Any] | str | Path) -> dict[str, Any]:
+        """POST /characters: keep a character definition (a mapping, or the path of a YAML or
+        JSON character file) under `name`; specs sent to the service may then name it as
+        their `character.model`. InvalidRequestError names the field of a bad definition,
+        ConflictError a taken name (a shipped or stored character's)."""
+        if isinstance(definition, (str, Path)):
+            try:
+                definition = read_document(definition, "character")
+            except SpecReadError as err:
+                raise SpecFileError(str(err)) from None
+        return self._request("POST", "/characters",
+                             json_body={"name": name, "definition": definition})
+
+    def characters(self, limit: int = 50, offset: int = 0) -> dict[str, Any]:
+        """GET /characters: the stored characters by name (`items`, each with its `summary`)
+        and the shipped ones' names (`shipped`)."""
+        return self._request("GET", "/characters", params={"limit": limit, "offset": offset})
+
+    def character(self, name: str) -> dict[str, Any]:
+        """GET /characters/{name}: a stored or shipped character with its definition."""
+        return self._request("GET", f"/characters/{name}")
 
     def basis(self, family: str, k: int) -> dict[str, Any]:
         """POST /bases: a PCA basis of the family's library CMRTs."""

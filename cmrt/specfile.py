@@ -10,6 +10,13 @@ writes whole specs). Files are not followed further: a block read from a file ma
 another. What leaves the command line (a parsed spec, a request body) therefore carries
 everything itself: a stored job or a worker on another host never reads a user's file.
 
+A character is the other block a spec may take from a file, in its own way: the file holds a
+character definition (the schema of the shipped characters, docs/characters.md), which becomes
+the block's `definition`; the block's `model` (the character's name) is the file's name when
+the block gives none and the name fits:
+
+    character: {file: my_character.yaml}  ->  character: {model: my_character, definition: ...}
+
 Every file is untrusted: at most MAX_FILE_BYTES, a mapping where one is expected, and each
 problem is one `SpecReadError` naming the file and the field.
 """
@@ -17,6 +24,7 @@ problem is one `SpecReadError` naming the file and the field.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +37,8 @@ MAX_FILE_BYTES = 8_000_000
 FILE_BLOCKS = ("task",)
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+#: A character's name (a spec's `character.model`), as a file's name may give it.
+_CHARACTER_NAME = re.compile(r"[a-z0-9_]{1,64}")
 
 
 class SpecReadError(ValueError):
@@ -74,7 +84,33 @@ def read_spec_file(path: str | Path) -> dict[str, Any]:
         block = doc.get(key)
         if isinstance(block, dict) and "file" in block:
             doc[key] = _inlined(block, key, p)
+    character = doc.get("character")
+    if isinstance(character, dict) and "file" in character:
+        doc["character"] = _character(character, p)
     return doc
+
+
+def _character(block: dict[str, Any], spec_path: Path) -> dict[str, Any]:
+    """The character block with the definition its `file` holds (module docstring)."""
+    where = f"{spec_path}: character.file"
+    ref = block["file"]
+    if not isinstance(ref, str) or not ref.strip() or "\0" in ref:
+        raise SpecReadError(f"{where}: must be a file name, got {ref!r}")
+    if "definition" in block:
+        raise SpecReadError(f"{where}: give a file or a definition, not both")
+    target = Path(ref) if Path(ref).is_absolute() else spec_path.parent / ref
+    try:
+        data = read_document(target, "the file `character.file` names")
+    except SpecReadError as err:
+        raise SpecReadError(f"{where}: {err}") from None
+    if not isinstance(data, dict):
+        raise SpecReadError(f"{where}: {target} holds no character (a mapping of reference, "
+                            f"root, segments, ...), got {type(data).__name__}")
+    out = {k: v for k, v in block.items() if k != "file"}
+    out["definition"] = data
+    if "model" not in out and _CHARACTER_NAME.fullmatch(target.stem):
+        out["model"] = target.stem
+    return out
 
 
 def _inlined(block: dict[str, Any], key: str, spec_path: Path) -> dict[str, Any]:

@@ -3,7 +3,8 @@
 # project, and only the `ode` module of Debian's dist-packages visible in it.
 #   scripts/setup.sh          what `make run` needs: the product and its runtime dependencies
 #   scripts/setup.sh --test   what `make test` needs besides: the dev extras (pytest, ruff,
-#                             schemathesis, playwright, the generated-client tool) and Chromium
+#                             schemathesis, playwright, the generated-client tool, bvh),
+#                             Chromium and Blender
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -42,6 +43,16 @@ if [ "$TEST" = 1 ] && [ ! -x /usr/bin/chromium ]; then
     SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
     retry $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive retry $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
+fi
+
+# The BVH export's check opens the exported file in Blender (tests/sim/test_blender.py): Debian's
+# blender, headless; the test path only (`make run` never needs it).
+if [ "$TEST" = 1 ] && ! command -v blender >/dev/null; then
+    echo "setup: installing Debian's blender"
+    SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
+    retry $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive retry $SUDO apt-get install -y -qq --no-install-recommends \
+        blender >/dev/null
 fi
 
 if [ ! -x .venv/bin/python ]; then

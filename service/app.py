@@ -26,6 +26,7 @@ from service.errors import install_error_handlers
 from service.openapi import install_openapi, operation_id
 from service.routers import (
     bases,
+    characters,
     cmrts,
     families,
     health,
@@ -90,8 +91,8 @@ def create_app(
     app.state.services = svc
     install_error_handlers(app)
     install_openapi(app, settings)
-    for module in (jobs, families, cmrts, refinements, bases, simulations, replays, links, health,
-                   pages):
+    for module in (jobs, families, cmrts, refinements, bases, characters, simulations, replays,
+                   links, health, pages):
         app.include_router(module.router)
     static = resources.files("service").joinpath("static")
     app.mount("/static", StaticFiles(directory=str(static)), name="static")

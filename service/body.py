@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 from fastapi import Request
@@ -109,10 +110,14 @@ async def read_json(request: Request, limit: int, max_depth: int = MAX_JSON_DEPT
     return parse_json(bytes(body), max_depth)
 
 
-async def read_model(request: Request, model: type[M], limit: int) -> M:
-    """The request body parsed (as `read_json`) and validated into `model`; a field breaking
-    a rule is a 422 naming every such field and its rule."""
+async def read_model(request: Request, model: type[M], limit: int,
+                     prepare: Callable[[Any], Any] | None = None) -> M:
+    """The request body parsed (as `read_json`), given to `prepare` if any (e.g. a stored
+    character put into its spec), and validated into `model`; a field breaking a rule is a
+    422 naming every such field and its rule."""
     data = await read_json(request, limit)
+    if prepare is not None:
+        data = prepare(data)
     try:
         return model.model_validate(data)
     except ValidationError as err:

@@ -1,4 +1,5 @@
-"""Signed, short-lived links to the replay pages, for a browser that cannot send the token.
+"""Signed, short-lived links to the replay pages and a job's motion files, for a browser that
+cannot send the token.
 
 With `CMRT_API_TOKEN` set and public reads off, every data read needs `Authorization: Bearer`;
 a link the dashboard hands to the browser (`<a href="/jobs/{id}/replay">`) cannot carry a
@@ -8,9 +9,9 @@ and the whole query but the signature (every parameter, sorted), so a parameter 
 changed in a signed link (`&compare=false`) voids it. The HTTP edge (`service.security`) lets a
 GET or HEAD of a replay page through with a valid, unexpired signature for exactly that path
 and query. Links are minted only for a job or library CMRT that exists (404 otherwise). A link
-lives `LINK_SECONDS`; changing the token revokes every link. Only the replay pages are signable
-(`SIGNABLE`): they are what a browser opens by following a link; the JSON endpoints keep needing
-the header.
+lives `LINK_SECONDS`; changing the token revokes every link. Only the replay pages and a job's
+motion downloads (`/jobs/{id}/motion.bvh`, `.csv`) are signable (`SIGNABLE`): they are what a
+browser opens by following a link; the JSON endpoints keep needing the header.
 """
 
 from __future__ import annotations
@@ -23,8 +24,10 @@ from urllib.parse import parse_qsl, urlencode
 
 #: How long a signed link stays valid, in seconds.
 LINK_SECONDS = 900
-#: The paths a link may be signed for: the replay pages of a job and of a library CMRT.
-SIGNABLE = re.compile(r"/(?:jobs|cmrts)/[A-Za-z0-9._~-]{1,64}/replay")
+#: The paths a link may be signed for: the replay pages of a job and of a library CMRT, and a
+#: job's motion files.
+SIGNABLE = re.compile(r"/(?:jobs|cmrts)/[A-Za-z0-9._~-]{1,64}/replay"
+                      r"|/jobs/[A-Za-z0-9._~-]{1,64}/motion\.(?:bvh|csv)")
 #: Hex digits of an HMAC-SHA256.
 SIGNATURE_CHARS = 64
 

@@ -104,6 +104,10 @@ LINKS: dict[tuple[str, str, str], dict[str, tuple[str, str, dict[str, str]]]] = 
     ("get", "/jobs", "200"): {
         "GetJob": ("get", "/jobs/{job_id}", {"job_id": "$response.body#/items/0/id"}),
     },
+    ("post", "/characters", "201"): {
+        "GetCharacter": ("get", "/characters/{character_name}",
+                         {"character_name": "$response.body#/name"}),
+    },
     ("post", "/bases", "201"): {
         "GetBasis": ("get", "/bases/{basis_id}", {"basis_id": "$response.body#/id"}),
     },

@@ -44,6 +44,13 @@ FAMILY_EXAMPLE: dict[str, Any] = {
 }
 #: The example body of `POST /bases`.
 BASIS_EXAMPLE: dict[str, Any] = {"family": "bend", "k": 2}
+#: POST /characters: a name and a definition (here the smallest that stands: docs/characters.md
+#: has the full schema and examples/my_character.yaml a humanoid).
+CHARACTER_EXAMPLE: dict[str, Any] = {
+    "name": "my_character",
+    "definition": {"reference": {"height": 1.75, "mass": 70.0}, "root": "pelvis",
+                   "torque_limit": 2000.0, "segments": "... (docs/characters.md)"},
+}
 
 
 class Problem(BaseModel):
@@ -262,6 +269,52 @@ class CmrtOut(CmrtSummary):
                                           "CMRT is vertical too")
     fell_without: bool | None
     source: CmrtSource
+
+
+# ---- characters --------------------------------------------------------------------------
+class CharacterRequest(BaseModel):
+    """A character definition to keep by name (docs/characters.md: the schema, field by
+    field); specs sent to the service name it as their `character.model`."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: Annotated[str, Field(pattern=r"^[a-z0-9_]{1,64}$", strict=True,
+                               description="lower-case letters, digits and `_`; no shipped "
+                                           "character's name")]
+    definition: dict[str, Any] = Field(description="a full character definition")
+
+
+class CharacterSummary(BaseModel):
+    """A character in a few numbers, at its reference size."""
+
+    height: float
+    mass: float
+    segments: int
+    joints: list[str]
+    hands: list[str]
+    torso: str | None
+
+
+class CharacterOut(BaseModel):
+    """A character: `shipped` with the package, or `stored` by POST /characters (then with
+    its creation time and the hash of its definition's canonical text)."""
+
+    name: str
+    url: str
+    source: Literal["shipped", "stored"]
+    summary: CharacterSummary
+    definition: dict[str, Any] | None = None
+    definition_hash: str | None = None
+    created_at: datetime | None = None
+
+
+class CharacterPage(BaseModel):
+    """Stored characters by name (without their definitions), and the shipped ones' names."""
+
+    items: list[CharacterOut]
+    total: int
+    limit: int
+    offset: int
+    shipped: list[str]
 
 
 class BasisRequest(BaseModel):
@@ -561,13 +614,15 @@ REPLAY_EXAMPLE: dict[str, Any] = {"spec": JOB_EXAMPLE, "cmrt": None, "compare": 
 
 # ---- signed links (service.routers.links, service.links) --------------------------------------
 class LinkRequest(BaseModel):
-    """A replay page to open without the token header."""
+    """A replay page or a job's motion file to open without the token header."""
 
     model_config = ConfigDict(extra="forbid")
     path: str = Field(max_length=128,
                       description="`/jobs/{id}/replay` or `/cmrts/{id}/replay` of an existing "
-                                  "job or library CMRT (id: 1-64 of A-Z a-z 0-9 . _ ~ -)",
-                      json_schema_extra={"pattern": f"^{SIGNABLE.pattern}$"})
+                                  "job or library CMRT, or `/jobs/{id}/motion.bvh` or "
+                                  "`/jobs/{id}/motion.csv` of an existing job (id: 1-64 of "
+                                  "A-Z a-z 0-9 . _ ~ -)",
+                      json_schema_extra={"pattern": f"^(?:{SIGNABLE.pattern})$"})
 
 
 class LinkOut(BaseModel):

@@ -33,6 +33,19 @@ OUTCOME_FIELDS = ("objective", "fell", "fall_time", "fall_reason", "fall_directi
                   "cpu_seconds", "steps", "contact_steps", "cmrt_released_at")
 
 
+#: How a clip fails in a pool process: the simulator's refusals (DivergenceError, ...), and
+#: numbers gone non-finite past its checks (numpy's LinAlgError is a ValueError): the clip
+#: diverged between two checks.
+CLIP_FAILURES = (SimError, ArithmeticError, ValueError)
+
+
+def clip_failure(err: Exception) -> dict[str, Any]:
+    """The `failed` outcome of a clip that raised one of CLIP_FAILURES, with the reason."""
+    if isinstance(err, SimError):
+        return {"status": "failed", "error": f"{type(err).__name__}: {err}"}
+    return {"status": "failed", "error": f"the simulation diverged ({type(err).__name__}: {err})"}
+
+
 def _finite_or_none(v: Any) -> Any:
     return None if isinstance(v, float) and not math.isfinite(v) else v
 
@@ -45,12 +58,8 @@ def run_clip(spec_data: dict[str, Any], params: list[float] | None, traces: bool
 
     try:
         ev = SimObjective(spec_data).evaluation(params, traces=traces or frames)
-    except SimError as err:  # DivergenceError and the simulator's other refusals
-        return {"status": "failed", "error": f"{type(err).__name__}: {err}"}
-    except (ArithmeticError, ValueError) as err:  # numbers gone non-finite past the checks
-        # (numpy's LinAlgError is a ValueError): the clip diverged between two checks
-        return {"status": "failed",
-                "error": f"the simulation diverged ({type(err).__name__}: {err})"}
+    except CLIP_FAILURES as err:
+        return clip_failure(err)
     out: dict[str, Any] = {"status": "done"}
     out.update({k: _finite_or_none(getattr(ev, k)) for k in OUTCOME_FIELDS})
     full = ev.to_dict(include_traces=True)
@@ -80,12 +89,26 @@ def run_replay(spec_data: dict[str, Any], params: list[float] | None,
         if params is not None:
             clips.append(ReplayClip("with the CMRT", obj.evaluation(params, traces=True),
                                     decode(spec, params), about))
-    except SimError as err:
-        return {"status": "failed", "error": f"{type(err).__name__}: {err}"}
-    except (ArithmeticError, ValueError) as err:
-        return {"status": "failed",
-                "error": f"the simulation diverged ({type(err).__name__}: {err})"}
+    except CLIP_FAILURES as err:
+        return clip_failure(err)
     return {"status": "done", "replay": build_replay(spec, clips)}
+
+
+def run_export(spec_data: dict[str, Any], params: list[float], fmt: str, fps: float
+               ) -> dict[str, Any]:
+    """Simulate the clip of `params` (in a pool process) and write its motion as `fmt` ("bvh"
+    or "csv", `sim.export`) at `fps`: `{"status": "done", "text": ...}`, or `failed` as
+    `run_clip`."""
+    from optim.objective import SimObjective
+    from sim.export import export_text
+
+    obj = SimObjective(spec_data)
+    try:
+        ev = obj.evaluation(params, traces=True)
+        text = export_text(obj.spec.load_character(), ev, fmt, fps)
+    except CLIP_FAILURES as err:
+        return clip_failure(err)
+    return {"status": "done", "text": text}
 
 
 class SimulationBusyError(Exception):

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+import sim.character_rules as rules
 from sim.errors import CharacterError
 
 DATA_DIR = Path(__file__).parent / "data"
@@ -73,7 +74,7 @@ class Character:
     torque_limits: np.ndarray  # (nh,) N m, |hinge torque| is clamped to this
     geoms: tuple[GeomDef, ...] = ()  # contact shapes against props
     hands: tuple[str, ...] = ()  # names of the geoms that can hold an object
-    torso: int = 0  # body a push acts on by default
+    torso: int | None = None  # body a push acts on by default (None: the file names none)
 
     @property
     def support_length(self) -> float:
@@ -116,7 +117,9 @@ class Character:
 
 
 def _vec2(value: Any, where: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float) if isinstance(value, list | tuple) else None
+    numbers = isinstance(value, list | tuple) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    arr = np.asarray(value, dtype=float) if numbers else None
     if arr is None or arr.shape != (2,) or not np.all(np.isfinite(arr)):
         raise CharacterError(f"{where}: must be a list of two finite numbers [x, y]")
     return arr
@@ -138,9 +141,10 @@ def _geom(g: Any, body: int, where: str) -> GeomDef:
     if not isinstance(g, dict) or g.get("shape") not in GEOM_SHAPES:
         raise CharacterError(f"{where}.shape: must be one of {', '.join(GEOM_SHAPES)}")
     name = g.get("name")
-    if name is not None and not isinstance(name, str):
-        raise CharacterError(f"{where}.name: must be a string")
-    radius = _positive(g.get("radius"), f"{where}.radius")
+    if name is not None:
+        rules.check_name(name, f"{where}.name")
+    radius = rules.within(_positive(g.get("radius"), f"{where}.radius"),
+                          (0.0, rules.MAX_RADIUS), f"{where}.radius", "m")
     if g["shape"] == "sphere":
         a = b = _vec2(g.get("center"), f"{where}.center")
     else:
@@ -176,13 +180,17 @@ class _Segments:
 
 
 def _segment_list(data: dict) -> list:
-    """The `segments` list, at least two, the first being the `root`."""
+    """The `segments` list, at least two, the first being the `root` (a tree's one segment
+    without a parent)."""
     segs = data.get("segments")
     if not isinstance(segs, list) or len(segs) < 2:
         raise CharacterError("segments: must be a list of at least two segments")
-    root = data.get("root")
+    root = rules.check_name(data.get("root"), "root")
     if not segs[0] or segs[0].get("name") != root:
         raise CharacterError(f"segments[0]: must be the root segment {root!r}")
+    if "parent" in segs[0] or "joint" in segs[0]:
+        raise CharacterError("segments[0]: the root has no parent and no joint (a tree has "
+                             "one root)")
     return segs
 
 
@@ -190,6 +198,7 @@ def _parse_body(out: _Segments, seg: Any, where: str) -> None:
     """A segment's body: its unique name, mass, inertia and CoM."""
     if not isinstance(seg, dict) or not isinstance(seg.get("name"), str):
         raise CharacterError(f"{where}.name: every segment needs a name")
+    rules.check_name(seg["name"], f"{where}.name")
     if seg["name"] in out.body_names:
         raise CharacterError(f"{where}.name: duplicate segment {seg['name']!r}")
     out.mass.append(_positive(seg.get("mass"), f"{where}.mass"))
@@ -201,23 +210,26 @@ def _parse_joint(out: _Segments, seg: dict, where: str, torque_limit: float) -> 
     """A non-root segment's hinge to its parent (listed before it): name, anchor, limits
     (degrees, around the zero pose), tracking weight and torque limit."""
     pname = seg.get("parent")
+    if pname is None:
+        raise CharacterError(f"{where}.parent: every segment but the root needs a parent (the "
+                             f"segments form one connected tree)")
     if pname not in out.body_names:
         raise CharacterError(
-            f"{where}.parent: {pname!r} must name a segment listed before {seg['name']!r}")
+            f"{where}.parent: {pname!r} must name a segment listed before {seg['name']!r} "
+            f"(a tree listed parents first: no cycle, one root)")
     joint = seg.get("joint")
     if not isinstance(joint, dict) or not isinstance(joint.get("name"), str):
         raise CharacterError(f"{where}.joint: needs a name, an anchor and limits")
+    rules.check_name(joint["name"], f"{where}.joint.name")
     if joint["name"] in out.hinge_names:
         raise CharacterError(f"{where}.joint.name: duplicate joint {joint['name']!r}")
     lim = joint.get("limits")
-    if (not isinstance(lim, list) or len(lim) != 2 or not all(
-            isinstance(v, int | float) for v in lim) or not lim[0] < lim[1]):
-        raise CharacterError(f"{where}.joint.limits: must be [lo, hi] degrees, lo < hi")
-    if not lim[0] <= 0.0 <= lim[1]:
-        raise CharacterError(f"{where}.joint.limits: must include the zero pose (0)")
-    out.weights.append(_nonnegative(joint.get("weight", DEFAULT_TRACKING_WEIGHT),
-                                    f"{where}.joint.weight"))
-    out.torques.append(_positive(joint.get("torque", torque_limit), f"{where}.joint.torque"))
+    rules.check_limits(lim, f"{where}.joint.limits")
+    weight = _nonnegative(joint.get("weight", DEFAULT_TRACKING_WEIGHT), f"{where}.joint.weight")
+    out.weights.append(rules.within(weight, rules.WEIGHT_RANGE, f"{where}.joint.weight",
+                                    "(no unit)"))
+    torque = _positive(joint.get("torque", torque_limit), f"{where}.joint.torque")
+    out.torques.append(rules.within(torque, rules.TORQUE_RANGE, f"{where}.joint.torque", "N m"))
     out.parent.append(out.body_names.index(pname))
     out.anchor.append(_vec2(joint.get("anchor"), f"{where}.joint.anchor"))
     out.hinge_names.append(joint["name"])
@@ -247,7 +259,9 @@ def _parse_contacts(out: _Segments, seg: dict, where: str, body: int) -> None:
             raise CharacterError(f"{where}.points[{k}]: must be [x, y, radius]")
         out.point_body.append(body)
         out.points.append(_vec2(p[:2], f"{where}.points[{k}]"))
-        out.point_radius.append(float(p[2]))
+        out.point_radius.append(rules.within(_nonnegative(p[2], f"{where}.points[{k}] radius"),
+                                             (0.0, rules.MAX_RADIUS),
+                                             f"{where}.points[{k}] radius", "m"))
     for k, g in enumerate(seg.get("geoms", []) or []):
         out.geoms.append(_geom(g, body, f"{where}.geoms[{k}]"))
 
@@ -256,7 +270,8 @@ def _parse_segments(data: dict) -> _Segments:
     """Every segment's body, joint, foot, outline points and geoms; at least one foot."""
     out = _Segments()
     segs = _segment_list(data)
-    torque_limit = _positive(data.get("torque_limit"), "torque_limit")
+    torque_limit = rules.within(_positive(data.get("torque_limit"), "torque_limit"),
+                                rules.TORQUE_RANGE, "torque_limit", "N m")
     for i, seg in enumerate(segs):
         where = f"segments[{i}]"
         _parse_body(out, seg, where)
@@ -273,13 +288,27 @@ def _parse_segments(data: dict) -> _Segments:
     return out
 
 
-def _standing_offsets(standing: dict, hinge_names: list[str]) -> np.ndarray:
-    """The standing pose's hinge angles (rad) relative to the zero pose."""
-    offsets = np.zeros(len(hinge_names))
-    for jname, deg in (standing.get("pose") or {}).items():
-        if jname not in hinge_names:
+def _standing_offsets(standing: Any, segs: _Segments) -> np.ndarray:
+    """The standing pose's hinge angles (rad) relative to the zero pose, within the limits."""
+    if not isinstance(standing, dict):
+        raise CharacterError("standing: must be a mapping (pose, balance)")
+    if not isinstance(standing.get("balance", False), bool):
+        raise CharacterError("standing.balance: must be true or false")
+    pose = standing.get("pose") or {}
+    if not isinstance(pose, dict):
+        raise CharacterError("standing.pose: must map joint names to degrees")
+    offsets = np.zeros(len(segs.hinge_names))
+    for jname, deg in pose.items():
+        if jname not in segs.hinge_names:
             raise CharacterError(f"standing.pose: unknown joint {jname!r}")
-        offsets[hinge_names.index(jname)] = np.radians(float(deg))
+        if isinstance(deg, bool) or not isinstance(deg, int | float):
+            raise CharacterError(f"standing.pose.{jname}: must be a number of degrees")
+        j = segs.hinge_names.index(jname)
+        lo, hi = np.degrees(segs.limits[j])
+        if not lo <= deg <= hi:
+            raise CharacterError(f"standing.pose.{jname}: must lie within the joint's limits "
+                                 f"[{lo:g}, {hi:g}] degrees, got {deg:g}")
+        offsets[j] = np.radians(float(deg))
     return offsets
 
 
@@ -291,7 +320,11 @@ def _hands_and_torso(data: dict, segs: _Segments) -> tuple[list[str], int]:
     hands = data.get("hands") or []
     if not isinstance(hands, list) or any(hd not in geom_names for hd in hands):
         raise CharacterError(f"hands: must list geom names, got {hands!r}")
-    torso_name = data.get("torso", data.get("root"))
+    if len(set(hands)) != len(hands):
+        raise CharacterError(f"hands: a geom is listed twice, got {hands!r}")
+    torso_name = data.get("torso")
+    if torso_name is None:
+        return hands, None
     if torso_name not in segs.body_names:
         raise CharacterError(f"torso: {torso_name!r} is not a segment")
     return hands, segs.body_names.index(torso_name)
@@ -300,8 +333,30 @@ def _hands_and_torso(data: dict, segs: _Segments) -> tuple[list[str], int]:
 def _reference(data: dict) -> tuple[float, float]:
     """The file's `reference` height (m) and mass (kg), those of its numbers."""
     ref = data.get("reference") or {}
-    return (_positive(ref.get("height"), "reference.height"),
-            _positive(ref.get("mass"), "reference.mass"))
+    if not isinstance(ref, dict):
+        raise CharacterError("reference: must hold the height (m) and mass (kg)")
+    h = _positive(ref.get("height"), "reference.height")
+    m = _positive(ref.get("mass"), "reference.mass")
+    return (rules.within(h, rules.HEIGHT_RANGE, "reference.height", "m"),
+            rules.within(m, rules.MASS_RANGE, "reference.mass", "kg"))
+
+
+def _check_geometry(segs: _Segments, ref_h: float) -> None:
+    """Every point of the zero pose above the ground and in the character's box, the feet's
+    soles on the ground under their segments."""
+    for i, (com, anchor) in enumerate(zip(segs.com, segs.anchor, strict=True)):
+        rules.check_place(com, 0.0, ref_h, f"segments[{i}].com")
+        if i:
+            rules.check_place(anchor, 0.0, ref_h, f"segments[{i}].joint.anchor")
+    for k, (p, r) in enumerate(zip(segs.points, segs.point_radius, strict=True)):
+        b = segs.point_body[k]
+        rules.check_place(p, r, ref_h, f"segments[{b}].points[{segs.point_body[:k].count(b)}]")
+    for g in segs.geoms:
+        for end in (g.a, g.b):
+            rules.check_place(end, g.radius, ref_h, f"segments[{g.body}].geoms "
+                              f"({g.name or g.shape})")
+    for f, heel, toe in zip(segs.feet, segs.heels, segs.toes, strict=True):
+        rules.check_foot(heel, toe, segs.com[f], f"segments[{f}]")
 
 
 def _scale(ref_h: float, ref_m: float, height: float | None,
@@ -322,10 +377,13 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
     """Validate a character mapping and scale it; CharacterError names the field and the rule."""
     if not isinstance(data, dict):
         raise CharacterError(f"{name}: a character file must be a mapping")
+    rules.check_document(data)
     ref_h, ref_m = _reference(data)
     segs = _parse_segments(data)
+    rules.check_masses(segs.mass, segs.inertia, ref_m)
+    _check_geometry(segs, ref_h)
     standing = data.get("standing") or {}
-    offsets = _standing_offsets(standing, segs.hinge_names)
+    offsets = _standing_offsets(standing, segs)
     hands, torso = _hands_and_torso(data, segs)
     h, ls, ms = _scale(ref_h, ref_m, height, mass)
     arr = np.asarray
@@ -355,6 +413,27 @@ def parse_character(data: Any, height: float | None = None, mass: float | None =
         hands=tuple(hands),
         torso=torso,
     )
+
+
+def shipped_characters() -> list[str]:
+    """The names of the characters shipped in `sim/data/`."""
+    return sorted(p.stem for p in DATA_DIR.glob("*.yaml"))
+
+
+def shipped_definition(name: str) -> dict[str, Any]:
+    """The definition (the file's mapping) of shipped character `name` (shipped_characters)."""
+    if name not in shipped_characters():
+        raise CharacterError(f"unknown character {name!r}")
+    return yaml.safe_load((DATA_DIR / f"{name}.yaml").read_text())
+
+
+def definition_reference(data: Any) -> tuple[float, float] | None:
+    """(height m, mass kg) of a definition's `reference`, or None if it has none that reads
+    (the parser then reports what is wrong)."""
+    try:
+        return _reference(data) if isinstance(data, dict) else None
+    except CharacterError:
+        return None
 
 
 @lru_cache(maxsize=16)

@@ -7,7 +7,8 @@
 `foot` and `geoms`), the props' shapes, and per clip the per-frame poses, CM, CM reference,
 CP, support edges and the plot traces at frame rate (CP error e(t), CMRT displacement, CM x
 against the reference), with the clip's outcome (objective, fall time and direction, task
-success). Pure: no I/O, no ODE.
+success) and its motion as BVH and CSV text (`sim.export`, for the player's downloads). Pure:
+no I/O, no ODE.
 
 Body-local coordinates: a body's frame has its origin at the body's CoM and is parallel to the
 world frame in the zero pose, so a local point p is drawn at (x, y) + R(angle) p for the
@@ -25,6 +26,7 @@ import numpy as np
 
 from sim.character import Character
 from sim.clip_result import Evaluation
+from sim.export import DEFAULT_FPS, export_text
 from sim.physics import DT
 from sim.props import PropDef
 
@@ -135,8 +137,9 @@ def _cmrt_xy(cmrt: Cmrt | None, ts: Sequence[float]) -> tuple[list[float], list[
     return dx, dy
 
 
-def clip_document(clip: ReplayClip) -> dict[str, Any]:
-    """One clip's part of the document (see docs/replay.md, "clips")."""
+def clip_document(clip: ReplayClip, ch: Character) -> dict[str, Any]:
+    """One clip's part of the document (see docs/replay.md, "clips"); `ch` is the clip's
+    character (its motion files, `sim.export`, are part of the document)."""
     ev = clip.evaluation
     fr = ev.frames
     if fr is None or ev.traces is None:
@@ -172,6 +175,9 @@ def clip_document(clip: ReplayClip) -> dict[str, Any]:
             "cm_x": [_r(x, Tr) for x, _ in fr.cm],
             "cm_ref_x": [_r(x, Tr) for x, _ in fr.cm_ref],
         },
+        # The files a user downloads from the player: what `cmrt simulate --export` writes.
+        "motion": {"fps": DEFAULT_FPS, "bvh": export_text(ch, ev, "bvh", DEFAULT_FPS),
+                   "csv": export_text(ch, ev, "csv", DEFAULT_FPS)},
     }
 
 
@@ -196,5 +202,5 @@ def build_replay(spec: Any, clips: Sequence[ReplayClip]) -> dict[str, Any]:
                       "segments": segment_shapes(ch)},
         "props": prop_shapes(props),
         "bodies": list(names),
-        "clips": [clip_document(k) for k in clips],
+        "clips": [clip_document(k, ch) for k in clips],
     }

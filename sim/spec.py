@@ -41,9 +41,13 @@ from pydantic import (
     BaseModel,
     Discriminator,
     Field,
+    PrivateAttr,
+    SerializerFunctionWrapHandler,
     Tag,
     ValidationError,
+    ValidationInfo,
     field_validator,
+    model_serializer,
     model_validator,
 )
 from pydantic.fields import FieldInfo
@@ -55,8 +59,12 @@ from sim.character import (
     DEFAULT_CHARACTER,
     Character,
     character_reference,
+    definition_reference,
     load_character,
+    parse_character,
+    shipped_characters,
 )
+from sim.character_rules import HEIGHT_RANGE, MASS_RANGE
 from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
 from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
@@ -99,35 +107,95 @@ ControllerBlock = Annotated[
                                         f"{', '.join(CONTROLLER_TYPES)}"))]
 
 
-class CharacterRef(_Strict):
-    """Which character (a file `sim/data/<model>.yaml`), scaled to a height (m), mass (kg).
-    A height or mass left out is the character file's own (its `reference`)."""
+#: The `model` of a character given by its `definition` when the spec names none.
+DEFINED_CHARACTER = "custom"
 
+
+class CharacterRef(_Strict):
+    """Which character: a shipped file `sim/data/<model>.yaml`, or a full `definition` (the
+    same schema, docs/characters.md) named `model`; scaled to a height (m) and mass (kg).
+    A height or mass left out is the character's own (its `reference`).
+
+    A definition travels with the spec (a stored job holds it; the spec hash covers it); a
+    spec without one has the canonical form it always had (the field is left out)."""
+
+    definition: dict[str, Any] | None = None
     model: Annotated[str, Field(pattern=r"^[a-z0-9_]{1,64}$")] = DEFAULT_CHARACTER
-    height: quantity(1.0, 2.5, "m") = 1.75
-    mass: quantity(20.0, 250.0, "kg") = 70.0
+    height: quantity(*HEIGHT_RANGE, "m") = 1.75
+    mass: quantity(*MASS_RANGE, "kg") = 70.0
+    _loaded: list[Character] = PrivateAttr(default_factory=list)
 
     @model_validator(mode="before")
     @classmethod
     def _file_reference(cls, data: Any) -> Any:
-        """Fill a missing height / mass from the named file (the defaults above are the
-        default character's); an unknown model is left to the field's own check."""
-        if isinstance(data, dict) and ("height" not in data or "mass" not in data):
-            ref = character_reference(data.get("model", DEFAULT_CHARACTER))
+        """Fill a missing height / mass from the character's `reference` (the defaults above
+        are the default character's), a definition's model name; an unknown model or a bad
+        definition is left to the field's own check."""
+        if not isinstance(data, dict):
+            return data
+        if "file" in data:
+            raise ValueError("file: a character file is read by the command line (cmrt "
+                             "simulate, optimize, submit), which sends its content as "
+                             "`definition`; a request holds the definition itself")
+        definition = data.get("definition")
+        if definition is not None and "model" not in data:
+            data = {**data, "model": DEFINED_CHARACTER}
+        if "height" not in data or "mass" not in data:
+            ref = (definition_reference(definition) if definition is not None
+                   else character_reference(data.get("model", DEFAULT_CHARACTER)))
             if ref is not None:
                 data = {"height": ref[0], "mass": ref[1], **data}
         return data
 
-    @field_validator("model")
+    @field_validator("definition")
     @classmethod
-    def _exists(cls, v: str) -> str:
-        if not (DATA_DIR / f"{v}.yaml").is_file():
-            known = sorted(p.stem for p in DATA_DIR.glob("*.yaml"))
-            raise ValueError(f"unknown character {v!r}; characters are {', '.join(known)}")
+    def _definition(cls, v: dict[str, Any] | None) -> dict[str, Any] | None:
+        """A definition obeys every rule of a character file (sim.character_rules)."""
+        if v is not None:
+            try:
+                parse_character(v)
+            except CharacterError as err:
+                raise ValueError(str(err)) from None
         return v
 
+    @field_validator("model")
+    @classmethod
+    def _exists(cls, v: str, info: ValidationInfo) -> str:
+        if "definition" not in info.data:
+            return v  # a definition was given and broke a rule: that error says it all
+        shipped = (DATA_DIR / f"{v}.yaml").is_file()
+        if info.data["definition"] is not None:
+            if shipped:
+                raise ValueError(f"{v!r} is a shipped character; a definition's name must be "
+                                 f"another")
+            return v
+        if not shipped:
+            raise ValueError(f"unknown character {v!r}; characters are "
+                             f"{', '.join(shipped_characters())}")
+        return v
+
+    @model_serializer(mode="wrap")
+    def _without_absent_definition(self, handler: SerializerFunctionWrapHandler
+                                   ) -> dict[str, Any]:
+        """A spec without a definition keeps the canonical form (and hash) it always had."""
+        out = handler(self)
+        if self.definition is None:
+            out.pop("definition", None)
+        return out
+
+    @property
+    def field(self) -> str:
+        """Where the spec holds this character's data: its definition, or the named file."""
+        return ("character.definition" if self.definition is not None
+                else f"character.model ({self.model}.yaml)")
+
     def load(self) -> Character:
-        return load_character(self.model, self.height, self.mass)
+        if self.definition is None:
+            return load_character(self.model, self.height, self.mass)
+        if not self._loaded:  # parsed once per spec: a rollout asks for it again
+            self._loaded.append(parse_character(self.definition, self.height, self.mass,
+                                                name=self.model))
+        return self._loaded[0]
 
 
 class Clip(_Strict):
@@ -252,6 +320,7 @@ class TaskSpec(_Strict):
             ch = self.character.load()
         except CharacterError as err:
             raise ValueError(f"character: {err}") from None
+        self.task.check_needs(ch, self.character.field)
         self.task.check(self, ch)
         self.controller.check(self, ch)
         if self.schedule and not self.controller.schedules_gains:

@@ -270,3 +270,18 @@ class CmrtVerificationRow(Base):
     outcome: Mapped[Any] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
 
+
+
+class CharacterRow(Base):
+    """A user's character definition kept by name (POST /characters): specs name it as their
+    `character.model` and get the definition inlined when they are submitted."""
+
+    __tablename__ = "characters"
+    __table_args__ = (UniqueConstraint("name", name="uq_characters_name"),)
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    name: Mapped[str] = mapped_column(String(64))
+    definition: Mapped[Any] = mapped_column(JSON)
+    #: SHA-256 of the definition's canonical text (cmrt.canonical).
+    definition_hash: Mapped[str] = mapped_column(String(64))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime())

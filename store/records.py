@@ -287,5 +287,17 @@ class VerificationRecord:
     created_at: datetime
 
 
+@dataclass(frozen=True)
+class CharacterRecord:
+    """A named character definition kept for reuse by name (`add_character`): the definition
+    as it was given (JSON data, validated by the caller), the hash of its canonical text."""
+
+    id: str
+    name: str
+    definition: dict[str, Any]
+    definition_hash: str
+    created_at: datetime
+
+
 #: Field names of a library entry, in order (`CmrtEntry`).
 CMRT_ENTRY_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(CmrtEntry))

@@ -9,8 +9,9 @@ the HTTP service) may use the same database at once: every write that others rac
 The contract is split by aggregate, each part with its docstrings: `store.jobs.JobRepository`
 (jobs, driver lease), `store.generations.EvaluationRepository` (generations, evaluations),
 `store.library.LibraryRepository` (CMRT library, PCA bases), `store.families.FamilyRepository`
-(families of CMRTs, whose runs are jobs); `Repository` is all four and `SqlRepository` their
-SQLAlchemy implementations together.
+(families of CMRTs, whose runs are jobs), `store.characters.CharacterRepository` (named
+character definitions); `Repository` is all five and `SqlRepository` their SQLAlchemy
+implementations together.
 
 Typical job flow (docs/service.md, "Architecture"):
 
@@ -33,6 +34,7 @@ Typical job flow (docs/service.md, "Architecture"):
 
 from __future__ import annotations
 
+from store.characters import CharacterRepository, SqlCharacters
 from store.families import FamilyRepository, SqlFamilies
 from store.generations import EvaluationRepository, SqlEvaluations
 from store.jobs import JobRepository, SqlJobs
@@ -40,12 +42,14 @@ from store.library import LibraryRepository, SqlLibrary
 from store.sql import Clock, utcnow
 
 
-class Repository(JobRepository, EvaluationRepository, LibraryRepository, FamilyRepository):
-    """Persistent state of jobs, generations, evaluations, the CMRT library, PCA bases and
-    families."""
+class Repository(JobRepository, EvaluationRepository, LibraryRepository, FamilyRepository,
+                 CharacterRepository):
+    """Persistent state of jobs, generations, evaluations, the CMRT library, PCA bases,
+    families and named character definitions."""
 
 
-class SqlRepository(SqlJobs, SqlEvaluations, SqlLibrary, SqlFamilies, Repository):
+class SqlRepository(SqlJobs, SqlEvaluations, SqlLibrary, SqlFamilies, SqlCharacters,
+                    Repository):
     """`Repository` on SQLAlchemy (SQLite or PostgreSQL; engine from `store.db.make_engine`,
     schema from `store.db.init_db`). Thread-safe; use one per process.
 

@@ -13,13 +13,14 @@
     iterations, which are below its window), and until each run first reached the cold full
     run's final objective ("to the full-space objective"; None when the reduced run never
     did).
-**Strategy switches**: each member's leave-one-out reconstruction error, the RMS over its
-spline parameters (box units, [0, 1]) of its row minus its projection on the k-component basis
-of the other members; above `switch_threshold` (default SWITCH_THRESHOLD = 0.05, 5 % of the
-box) the member is flagged: its optimum is not on the family's low-dimensional surface (e.g.
-knots that jump between neighbours), and interpolation across it is not to be trusted. The
-largest knot-time change from the previous member (s) is reported beside it. Flags are
-reported per member, never averaged into the rows.
+**Strategy switches**: the library's own check (`parameter_distance`, `SWITCH_DISTANCE`), applied
+to neighbouring members: a member whose spline parameters lie more than `switch_threshold`
+(default SWITCH_DISTANCE = 0.15, RMS in box units) from the previous member's is flagged, the
+switch lying between the two; the library never averages across it. Beside it, the largest
+knot-time change from the previous member (s) and the member's leave-one-out reconstruction
+error (the RMS of its row minus its projection on the k-component basis of the other members:
+how well the family's low-dimensional surface holds it; on a small family every member's is
+large, so it is reported, not used as a flag). Flags are per member, never averaged into rows.
 """
 
 from __future__ import annotations
@@ -95,8 +96,9 @@ class MemberRow:
     evaluations: int
     stop_rule: str
     reconstruction_error: float | None  # leave-one-out, RMS box units
-    switch: bool
+    switch: bool  # a strategy switch lies between the previous member and this one
     knot_shift: float | None  # s, largest knot-time change from the previous member
+    distance: float | None  # RMS box units, spline parameters from the previous member
 
 
 @dataclass(frozen=True)
@@ -163,6 +165,12 @@ class FamilyChecks:
         return d
 
 
+def parameter_distance(x: Sequence[float], y: Sequence[float]) -> float:
+    """RMS distance of two CMRTs' spline parameters (box units); inf for two layouts."""
+    a, b = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    return float(np.sqrt(np.mean((a - b) ** 2))) if a.shape == b.shape else float("inf")
+
+
 def reconstruction_errors(
     k: int, members: Mapping[float, OptimizationResult]
 ) -> dict[float, float | None]:
@@ -191,7 +199,8 @@ def reconstruction_errors(
 def _member_rows(
     fs: FamilySpec, chosen: Mapping[float, tuple[str, OptimizationResult]]
 ) -> list[MemberRow]:
-    """One row per member: its outcome, reconstruction error, switch flag and knot shift."""
+    """One row per member: its outcome, reconstruction error, distance and knot shift from the
+    previous member, and whether a strategy switch lies between the two."""
     members = {v: res for v, (_, res) in chosen.items()}
     recon = reconstruction_errors(fs.k, members)
     rows: list[MemberRow] = []
@@ -200,10 +209,10 @@ def _member_rows(
         rid, r = chosen[v]
         shift = None if prev is None else float(np.max(np.abs(
             np.asarray(r.knot_times) - np.asarray(prev.knot_times))))
-        e = recon.get(v)
+        dist = None if prev is None else parameter_distance(r.params, prev.params)
         rows.append(MemberRow(v, rid, r.objective, r.fell, r.task_success,
-                              r.baseline_objective, r.evaluations, r.stop_rule, e,
-                              e is not None and e > fs.switch_threshold, shift))
+                              r.baseline_objective, r.evaluations, r.stop_rule, recon.get(v),
+                              dist is not None and dist > fs.switch_threshold, shift, dist))
         prev = r
     return rows
 
@@ -320,6 +329,7 @@ __all__ = [
     "converged_at",
     "evaluations_to_reach",
     "family_checks",
+    "parameter_distance",
     "reconstruction_errors",
     "rule_converged_at",
 ]

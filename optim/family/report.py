@@ -63,23 +63,31 @@ def _f(x: float | None, fmt: str = ".3f") -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
 
 
+def _switch_pairs(members: list[Mapping[str, Any]]) -> str:
+    """The strategy switches as "between A and B", in the members' order."""
+    return ", ".join(f"between {a['value']:g} and {b['value']:g}"
+                     for a, b in zip(members, members[1:], strict=False) if b["switch"])
+
+
 def format_tables(report: Mapping[str, Any]) -> str:
     """Markdown tables of a `family_report`: members, interpolation, Table 2 rows."""
     c = report["checks"]
     leaf = report["param"].rsplit(".", 1)[-1]
     out = [f"| {leaf} | run | no CMRT | optimised | fell | task | evaluations | stop rule | "
-           "recon. error | knot shift (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
+           "recon. error | from the previous: distance, knot shift (s) |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
     for m in c["members"]:
         flag = " **switch**" if m["switch"] else ""
         out.append(f"| {m['value']:g} | {m['run']} | {m['baseline_objective']:.3f} | "
                    f"{m['objective']:.3f} | {m['fell']} | {m['task_success']} | "
-                   f"{m['evaluations']} | {m['stop_rule']} | "
-                   f"{_f(m['reconstruction_error'])}{flag} | {_f(m['knot_shift'], '.2f')} |")
+                   f"{m['evaluations']} | {m['stop_rule']} | {_f(m['reconstruction_error'])} | "
+                   f"{_f(m.get('distance'))}, {_f(m['knot_shift'], '.2f')}{flag} |")
+    pairs = _switch_pairs(c["members"])
     ve = c["variance_explained"]
     out.append(f"\nbasis: k = {c['k']}, variance explained per component "
                f"{', '.join(f'{x:.1%}' for x in ve[: c['k']])} (sum "
-               f"{sum(ve[: c['k']]):.1%}); switch threshold {c['switch_threshold']:g}; "
-               f"flagged: {', '.join(f'{v:g}' for v in c['switches']) or 'none'}")
+               f"{sum(ve[: c['k']]):.1%}); strategy switches (neighbours' CMRTs more than "
+               f"{c['switch_threshold']:g} apart, the library's check): {pairs or 'none'}")
     out += ["", f"| {leaf} | from | interpolated | fell | task | optimised there | excess |",
             "|---|---|---|---|---|---|---|"]
     for p in c["probes"]:

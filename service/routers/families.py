@@ -10,6 +10,7 @@ from fastapi.responses import JSONResponse
 
 from application import families as app_families
 from application.admission import BudgetExceeded
+from application.characters import with_stored_character
 from optim.family.spec import FamilyError
 from service import paper, schemas
 from service.body import read_json
@@ -61,6 +62,8 @@ async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
     an ordinary job (listed under /jobs); the whole family is admitted against the job
     budget ceiling. 202 with the family's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
+    if isinstance(data, dict) and "spec" in data:  # a stored character named: its definition
+        data = {**data, "spec": with_stored_character(svc.repo, data["spec"])}
     try:  # validated, admitted as a whole, stored (application.families)
         fam, budget, runs = app_families.submit_family(svc.repo, svc.settings, data)
     except (FamilyError, BudgetExceeded) as err:

@@ -10,6 +10,7 @@ from fastapi.responses import JSONResponse
 from application import jobs
 from application.admission import BudgetExceeded
 from application.bases import UnusableBasisError
+from application.characters import with_stored_character
 from application.jobs import START_CHOICES
 from cmrt.defaults import DEFAULT_SEED
 from optim.spline import decode, sample_curve
@@ -77,6 +78,7 @@ async def submit_job(
     query's seed, basis and start apply then). 202 with the job's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
     data, seed, basis, start = _envelope(data, seed, basis, start)
+    data = with_stored_character(svc.repo, data)  # a stored character named: its definition
     try:  # the one parse: the drivers of this process find it by its hash (optim.objective)
         canonical = parse_canonical(data, "spec")
     except SpecError as err:

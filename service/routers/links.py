@@ -1,4 +1,5 @@
-"""POST /links: a signed, short-lived link to a replay page (`service.links`)."""
+"""POST /links: a signed, short-lived link to a replay page or a job's motion file
+(`service.links`)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from service.security import token_of
 router = APIRouter(prefix="/links", tags=["replays"])
 
 
-@router.post("", status_code=201, summary="Sign a link to a replay page",
+@router.post("", status_code=201, summary="Sign a link to a replay page or a job's motion file",
              response_model=schemas.LinkOut,
              openapi_extra=json_body(schemas.LinkRequest, example=schemas.LINK_EXAMPLE),
              responses=error_responses(400, 404, 413, 415, 422))
@@ -27,7 +28,8 @@ async def create_link(request: Request, settings: SettingsDep, repo: RepoDep) ->
     req = await read_model(request, schemas.LinkRequest, settings.max_body_bytes)
     if not links.SIGNABLE.fullmatch(req.path):
         raise HttpError(422, "path: must be a replay page, /jobs/{id}/replay or "
-                            "/cmrts/{id}/replay (id: 1-64 of A-Z a-z 0-9 . _ ~ -)")
+                            "/cmrts/{id}/replay, or a job's motion file, /jobs/{id}/motion.bvh "
+                            "or .csv (id: 1-64 of A-Z a-z 0-9 . _ ~ -)")
     kind, ident = req.path.split("/")[1:3]
     if kind == "jobs":  # store.NotFound: 404
         repo.get_job(ident)

@@ -6,16 +6,21 @@ The clips are simulated in the API's simulation pool (`service.simulations.run_r
 `POST /simulations`. 404: unknown id; 409: a job without a best candidate yet, a CMRT stored
 without its spec, or a stored candidate whose clip fails; 422: a bad body or parameter;
 503: every simulation process is busy.
+
+A job's motion files, `GET /jobs/{id}/motion.bvh` and `.csv` (`sim.export`, docs/export.md):
+the best candidate so far simulated once in the same pool (`run_export`) and written at
+`?fps=` (default 60, 1-1000); 404 while the job has no candidate (there is no motion yet).
 """
 
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 
 from application.jobs import stored_job_spec
 from optim.errors import ParamsError
@@ -27,8 +32,9 @@ from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.replay_page import render_replay, replay_csp
 from service.routers.simulations import RETRY_AFTER_S, _params
-from service.simulations import SimulationBusyError, run_replay
+from service.simulations import SimulationBusyError, run_export, run_replay
 from sim.errors import SpecError
+from sim.export import DEFAULT_FPS, MAX_FPS, MIN_FPS
 from sim.spec import TaskSpec, parse_spec
 
 router = APIRouter(tags=["replays"])
@@ -41,6 +47,12 @@ Expires = Annotated[int | None, Query(ge=0, le=10**15, description="a signed lin
                                       "(unix seconds), from POST /links")]
 Signature = Annotated[str | None, Query(max_length=64, pattern="^[0-9a-f]*$",
                                         description="a signed link's HMAC, from POST /links")]
+Fps = Annotated[float, Query(ge=MIN_FPS, le=MAX_FPS, allow_inf_nan=False,
+                             description="frames per second, resampled from the 1 kHz "
+                                         "simulation")]
+#: The motion files by extension: media type, and what they hold.
+_MOTION = {"bvh": ("text/plain; charset=utf-8", "BVH: the character's skeleton"),
+           "csv": ("text/csv; charset=utf-8", "CSV: root, joint angles, CM, CP")}
 _HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}},
                "description": "The self-contained replay page (player, data and uPlot inline)"}}
 
@@ -48,13 +60,8 @@ _HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}},
 async def _document(svc: Any, spec_data: dict[str, Any], params: list[float] | None,
                     about: dict[str, Any] | None, compare: bool, failed_status: int
                     ) -> dict[str, Any]:
-    try:
-        out = await svc.simulations.call(run_replay, spec_data, params, about, compare)
-    except SimulationBusyError:
-        raise HttpError(503, "simulations: every simulation process is busy; retry later",
-                       headers={"Retry-After": str(RETRY_AFTER_S)}) from None
-    if out["status"] != "done":
-        raise HttpError(failed_status, f"replay: the simulation failed ({out['error']})")
+    out = await _simulated(svc, "replay", failed_status, run_replay, spec_data, params, about,
+                           compare)
     return out["replay"]
 
 
@@ -93,6 +100,34 @@ async def _job_doc(job_id: str, request: Request, svc: Any, compare: bool) -> di
              "job_objective": job.best_objective,
              "url": url_for(request, "get_job", job_id=job.id)}
     return await _document(svc, spec, params, about, compare, 409)
+
+
+async def _simulated(svc: Any, what: str, failed_status: int, fn: Any, *args: Any
+                     ) -> dict[str, Any]:
+    """`fn(*args)` in the simulation pool: its `done` answer, or 503 (every process busy) or
+    `failed_status` naming `what` failed and why."""
+    try:
+        out = await svc.simulations.call(fn, *args)
+    except SimulationBusyError:
+        raise HttpError(503, "simulations: every simulation process is busy; retry later",
+                       headers={"Retry-After": str(RETRY_AFTER_S)}) from None
+    if out["status"] != "done":
+        raise HttpError(failed_status, f"{what}: the simulation failed ({out['error']})")
+    return out
+
+
+async def _job_motion(job_id: str, svc: Any, fmt: str, fps: float) -> Response:
+    """The job's best candidate's clip as a motion file (404 while it has none)."""
+    job = svc.repo.get_job(job_id)  # store.NotFound: 404
+    if job.best_params is None:
+        raise HttpError(404, f"job {job_id!r}: no best candidate yet ({job.status}); its "
+                             "motion exists once a candidate has been evaluated")
+    spec, params = _stored(lambda: stored_job_spec(job).spec, job.spec, job.best_params,
+                           f"job {job_id!r}")
+    out = await _simulated(svc, "motion", 409, run_export, spec, params, fmt, fps)
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", str(job.name or "job"))[:64]
+    return Response(out["text"], media_type=_MOTION[fmt][0], headers={
+        "content-disposition": f'attachment; filename="{name}-{job.id}.{fmt}"'})
 
 
 async def _simulation_doc(request: Request, svc: Any) -> dict[str, Any]:
@@ -157,3 +192,30 @@ async def simulation_replay(request: Request, svc: ServicesDep) -> HTMLResponse:
              summary="Replay a what-if clip (JSON)")
 async def simulation_replay_json(request: Request, svc: ServicesDep) -> JSONResponse:
     return JSONResponse(await _simulation_doc(request, svc))
+
+
+def _motion_responses(fmt: str) -> dict[int | str, dict[str, Any]]:
+    media, what = _MOTION[fmt]
+    return {200: {"content": {media.split(";")[0]: {"schema": {"type": "string"}}},
+                  "description": f"The motion file ({what}), as an attachment"},
+            **error_responses(404, 409, 422, 503)}
+
+
+@router.get("/jobs/{job_id}/motion.bvh", response_class=Response,
+            responses=_motion_responses("bvh"),
+            summary="A job's best candidate's motion as BVH (the character's skeleton)")
+async def job_motion_bvh(job_id: str, svc: ServicesDep, fps: Fps = DEFAULT_FPS,
+                         expires: Expires = None, signature: Signature = None) -> Response:
+    """The job's best candidate so far, simulated on the job's spec, as BVH at `fps` frames
+    per second (docs/export.md); 404 while the job has no candidate."""
+    return await _job_motion(job_id, svc, "bvh", fps)
+
+
+@router.get("/jobs/{job_id}/motion.csv", response_class=Response,
+            responses=_motion_responses("csv"),
+            summary="A job's best candidate's motion as CSV (root, joint angles, CM, CP)")
+async def job_motion_csv(job_id: str, svc: ServicesDep, fps: Fps = DEFAULT_FPS,
+                         expires: Expires = None, signature: Signature = None) -> Response:
+    """The job's best candidate so far, simulated on the job's spec, as CSV at `fps` frames
+    per second (docs/export.md); 404 while the job has no candidate."""
+    return await _job_motion(job_id, svc, "csv", fps)

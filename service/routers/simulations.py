@@ -9,6 +9,7 @@ from typing import Any
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
+from application.characters import with_stored_character
 from optim.errors import ParamsError
 from optim.spline import check_params
 from service import schemas
@@ -60,6 +61,13 @@ def _params(svc: Any, request: Request, req: schemas.SimulationRequest
     return about["params"], about
 
 
+def _stored_character(svc: Any, data: Any) -> Any:
+    """The request with the definition of a stored character its spec names put in."""
+    if isinstance(data, dict) and "spec" in data:
+        return {**data, "spec": with_stored_character(svc.repo, data["spec"])}
+    return data
+
+
 @router.post("", response_model=schemas.SimulationOut, summary="Simulate one clip (what-if)",
              openapi_extra=json_body(schemas.SimulationRequest,
                                      example=schemas.SIMULATION_EXAMPLE),
@@ -70,7 +78,8 @@ async def simulate(request: Request, svc: ServicesDep) -> JSONResponse:
     "frames": false}`. Runs the clip in the API's simulation pool and answers with the
     objective, whether and which way the character fell, the task's success and the traces;
     `status: "failed"` (with `error`) when the simulation diverges or its process dies."""
-    req = await read_model(request, schemas.SimulationRequest, svc.settings.max_body_bytes)
+    req = await read_model(request, schemas.SimulationRequest, svc.settings.max_body_bytes,
+                           prepare=lambda data: _stored_character(svc, data))
     params, about = _params(svc, request, req)
     try:
         out = await svc.simulations.run(req.spec.model_dump(mode="json"), params,

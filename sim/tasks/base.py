@@ -6,6 +6,8 @@ subclass, plus its entry in `sim.tasks.TASK_TYPES`. The spec's `task` field is t
 discriminated union of every registered config.
 
 Contract of a `TaskConfig`:
+  * `needs()`: what the task needs of a character (`CHARACTER_NEEDS`: `hands`, `torso`);
+    checked once, when the spec is parsed, for any character (`check_needs`), before `check`.
   * `check(spec, character)`: every rule that needs the rest of the spec or the character
     (joint and body names, windows inside the clip); raises ValueError whose message starts
     with the field's path (`task.target: ...`). Called once, when the spec is parsed.
@@ -59,6 +61,14 @@ Pose = dict[str, Angle]
 ClipTime = quantity(0.0, MAX_CLIP_SECONDS, "s")
 
 
+#: What a task may need of a character, and the words that say it: each names the character
+#: definition's field that provides it.
+CHARACTER_NEEDS = {
+    "hands": "hands (the geoms that hold or strike: its `hands`)",
+    "torso": "a torso (the segment a push acts on: its `torso`)",
+}
+
+
 def check_pose(pose: dict[str, float], character: Character, where: str) -> None:
     """Joint names known to the character, angles in degrees within the joint's range."""
     for name, deg in pose.items():
@@ -79,6 +89,22 @@ class TaskConfig(StrictModel):
     """Base of every task type's spec block; see the module docstring."""
 
     type: str
+    #: What this task type needs of a character (keys of `CHARACTER_NEEDS`).
+    NEEDS: ClassVar[tuple[str, ...]] = ()
+
+    def needs(self) -> tuple[str, ...]:
+        """What this task needs of its character (`CHARACTER_NEEDS`' keys)."""
+        return self.NEEDS
+
+    def check_needs(self, character: Character, field: str) -> None:
+        """ValueError naming the task and the character's field (`field`: where the spec
+        holds the character, e.g. `character.definition`) when the character lacks a need."""
+        have = {"hands": bool(character.hands), "torso": character.torso is not None}
+        for need in self.needs():
+            if not have[need]:
+                raise ValueError(f"task.type: a {self.type} task needs a character with "
+                                 f"{CHARACTER_NEEDS[need]}; {field}.{need}: character "
+                                 f"{character.name!r} has none")
 
     def check(self, spec: Any, character: Character) -> None:
         return None

@@ -56,6 +56,7 @@ class CatchConfig(TaskConfig):
     flight, arrival}, reach?}`."""
 
     type: Literal["catch"] = "catch"
+    NEEDS = ("hands",)
     PARAMETER_PATHS: ClassVar[dict[str, str]] = {"mass": "ball.mass"}
     hold: Pose
     ball: Ball = Ball()
@@ -67,8 +68,6 @@ class CatchConfig(TaskConfig):
 
     def check(self, spec: Any, character: Any) -> None:
         check_pose(self.hold, character, "task.hold")
-        if not character.hands:
-            raise ValueError(f"task: character {character.name!r} names no hands to catch with")
         arrival = self.arrival(spec.clip)
         if arrival > spec.clip.length:
             raise ValueError("task.throw.arrival: after the end of the clip")

@@ -68,6 +68,7 @@ class PullConfig(TaskConfig):
     are the character's (the example specs carry them)."""
 
     type: Literal["pull"] = "pull"
+    NEEDS = ("hands",)
     PARAMETER_PATHS: ClassVar[dict[str, str]] = {"mass": "mass", "chain_mass": "chain.mass"}
     mass: quantity(MIN_BOX_MASS_KG, MAX_BOX_MASS_KG, "kg")
     chain: Chain = Chain()
@@ -82,9 +83,6 @@ class PullConfig(TaskConfig):
     def check(self, spec: Any, character: Any) -> None:
         check_pose(self.hold, character, "task.hold")
         check_pose(self.pull, character, "task.pull")
-        if not character.hands:
-            raise ValueError(f"task: character {character.name!r} names no hands to hold a "
-                             "chain with")
         grip = grip_point(character, pose_offsets(self.hold, character))
         if not all(math.isfinite(v) for v in grip):
             raise ValueError("task.hold: no balanced standing pose holds the arms there")

@@ -81,6 +81,7 @@ class PunchConfig(TaskConfig):
     rope, links}` (module docstring)."""
 
     type: Literal["punch"] = "punch"
+    NEEDS = ("hands",)
     PARAMETER_PATHS: ClassVar[dict[str, str]] = {
         "mass": "mass", "distance": "distance", "height": "height",
         "punch_delay": "punches.0.delay"}
@@ -114,8 +115,6 @@ class PunchConfig(TaskConfig):
         return out
 
     def check(self, spec: Any, character: Any) -> None:
-        if not character.hands:
-            raise ValueError("task: a punch needs a character whose file lists `hands`")
         if any(character.geom(h).shape != "sphere" for h in character.hands):
             raise ValueError("task: a punch needs the character's hand geoms to be spheres")
         for where, start, dur, target in self.motion_windows(spec.clip):

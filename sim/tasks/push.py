@@ -38,6 +38,10 @@ class PushConfig(TaskConfig):
     def signed_force(self) -> float:
         return self.force if self.direction == "forward" else -self.force
 
+    def needs(self) -> tuple[str, ...]:
+        """A push on no named `body` acts on the character's torso."""
+        return ("torso",) if self.body is None else ()
+
     def check(self, spec: Any, character: Any) -> None:
         if self.body is not None and self.body not in character.body_names:
             raise ValueError(f"task.body: unknown body {self.body!r}; bodies are "

@@ -14,11 +14,7 @@ class TireHitConfig(TireConfig):
     the tire."""
 
     type: Literal["tire_hit"] = "tire_hit"
-
-    def check(self, spec: Any, character: Any) -> None:
-        if not character.hands:
-            raise ValueError(f"task: character {character.name!r} names no hands to hit with")
-        super().check(spec, character)
+    NEEDS = ("hands",)
 
     def build(self, spec: Any, character: Any) -> Task:
         return TireTask(spec, character, hit=True)

@@ -46,6 +46,10 @@ def server(tmp_path_factory):
         lib = [srv.submit({"spec": spec(f"bend_{d}", duration=d), "seed": 0})
                for d in (0.3, 0.4, 0.5)]
         lib.append(srv.submit(spec("hostile_family", family=XSS, duration=0.4)))
+        # a family that varies the push's force at one task duration
+        lib += [srv.submit({**spec(f"push_{f}", family="push_lib", duration=0.2),
+                            "task": {"type": "push", "force": f, "direction": "forward"}})
+                for f in (100.0, 150.0)]
         srv.wait(lib)
         for job_id in lib:
             assert srv.job(job_id)["cmrt_id"], srv.job(job_id)
@@ -110,6 +114,23 @@ def test_job_page_of_a_finished_job(server, page):
     assert float(legend[4]) == pytest.approx(job["best_objective"], rel=1e-4)  # best so far
     final = page.locator("#evals tbody tr").first.locator("td").all_text_contents()
     assert final[:3] == ["final", "2", "2"]  # the closing re-evaluation: best and flat spline
+    # The best candidate's motion files download from the page (docs/export.md).
+    for fmt, head in (("bvh", "HIERARCHY\nROOT pelvis\n"), ("csv", "t,root_x,root_y,")):
+        assert page.get_attribute(f"#motion-{fmt}", "href") == f"/jobs/{job_id}/motion.{fmt}"
+        with page.expect_download(timeout=LOAD_TIMEOUT_MS) as dl:
+            page.click(f"#motion-{fmt}")
+        text = Path(dl.value.path()).read_text()
+        assert dl.value.suggested_filename == f"bend_0.3-{job_id}.{fmt}"
+        assert text.startswith(head)
+        assert text == httpx.get(f"{server.url}/jobs/{job_id}/motion.{fmt}", timeout=60).text
+    assert page.errors == []
+
+
+def test_library_preview_opens_on_the_parameter_the_family_varies(server, page):
+    _loaded(page, server.url + "/dashboard/library?family=push_lib")
+    assert page.locator("#along").input_value() == "force"
+    _wait(page, "document.getElementById('interp-note').textContent.startsWith('force = ')")
+    assert "between force = 100 and force = 150" in page.locator("#interp-note").text_content()
     assert page.errors == []
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import json
 import time
 from pathlib import Path
 
@@ -85,6 +86,27 @@ def test_opens_offline_plays_and_scrubs(offline_page, fast_bend_replay):
     speeds = page.eval_on_selector_all("#speed option", "os => os.map(o => Number(o.value))")
     assert min(speeds) == 0.1 and max(speeds) == 2
     assert page.is_checked("#loop")
+    assert page.errors == []
+
+
+def test_the_motion_downloads_from_the_file(offline_page, fast_bend_replay):
+    """Each clip's BVH and CSV download from the file itself (offline, under its CSP): the
+    files `cmrt simulate --export` writes of the same clip."""
+    page = offline_page
+    page.goto(fast_bend_replay.as_uri())
+    page.wait_for_selector("#replay[data-ready=true]")
+    doc = json.loads(fast_bend_replay.read_text().split('type="application/json">', 1)[1]
+                     .split("</script>", 1)[0])
+    for k, stem in ((0, "fast_bend_flat"), (1, "fast_bend_cmrt")):
+        for fmt in ("bvh", "csv"):
+            with page.expect_download() as dl:
+                page.click(f"a.download-{fmt}[data-clip='{k}']")
+            assert dl.value.suggested_filename == f"{stem}.{fmt}"
+            assert Path(dl.value.path()).read_text() == doc["clips"][k]["motion"][fmt]
+    d = fast_bend_replay.parent
+    assert main(["simulate", str(d / "fast_bend.yaml"), "--cmrt", str(d / "fast.json"),
+                 "--export", str(d / "fast.bvh")]) == 0
+    assert (d / "fast.bvh").read_text() == doc["clips"][1]["motion"]["bvh"]
     assert page.errors == []
 
 

@@ -54,3 +54,23 @@ def test_replay_link_opens_with_a_signed_url(closed_server, page):
     # The signed URL opens nothing else: the job's JSON with its query is still refused.
     query = page.url.split("?", 1)[1]
     assert httpx.get(f"{srv.url}/jobs/{srv.job_id}?{query}", timeout=30).status_code == 401
+
+
+def test_motion_link_downloads_with_a_signed_url(closed_server, page):
+    """The job page's BVH link, with reads closed: the click signs the path and the browser
+    downloads the file (a plain GET answers 401)."""
+    srv = closed_server
+    plain = f"{srv.url}/jobs/{srv.job_id}/motion.bvh"
+    assert httpx.get(plain, timeout=30).status_code == 401
+    page.goto(f"{srv.url}/dashboard/jobs/{srv.job_id}")
+    page.fill("#token", TOKEN)
+    page.press("#token", "Enter")
+    page.wait_for_selector("#token[placeholder='(token set)']", timeout=LOAD_TIMEOUT_MS)
+    page.errors.clear()
+    page.wait_for_selector("#motion-bvh", timeout=LOAD_TIMEOUT_MS)
+    with page.expect_download(timeout=LOAD_TIMEOUT_MS) as dl:
+        page.click("#motion-bvh")
+    assert dl.value.url.startswith(plain + "?expires=") and "&signature=" in dl.value.url
+    text = Path(dl.value.path()).read_text()
+    assert text.startswith("HIERARCHY\nROOT pelvis\n") and "\nMOTION\nFrames: " in text
+    assert page.errors == []

@@ -137,6 +137,21 @@ def test_submit_wait_generations_best(service):
     assert again["best_params"] == final["best_params"]
 
 
+def test_a_jobs_motion_files(service, tmp_path):
+    """Job.motion: the best candidate's clip as the service writes it (BVH, CSV at a rate),
+    kept in a file when asked; a bad rate is the server's 422 naming the field."""
+    client, _url, _tmp, done = service
+    job = client.job(done[0.3]["id"])
+    bvh = job.motion(out=tmp_path / "m.bvh")
+    # a 0.8 s clip: frames at 0 .. 0.783 s (60 fps), 0 .. 0.7 s (10 fps)
+    assert bvh.startswith("HIERARCHY\nROOT pelvis\n") and "\nFrames: 48\n" in bvh
+    assert (tmp_path / "m.bvh").read_text() == bvh
+    table = job.motion("csv", fps=10)
+    assert table.startswith("t,root_x,root_y,root_angle,") and table.count("\n") == 1 + 8
+    with pytest.raises(InvalidRequestError, match="fps: "):
+        job.motion("csv", fps=5000)
+
+
 def test_jobs_filters(service):
     client, _url, _tmp, done = service
     ids = {j.id for j in client.jobs(family="bend", limit=200)}
@@ -446,3 +461,30 @@ def test_a_read_on_a_connection_the_server_closed_is_sent_again():
             assert seen == ["/jobs"]
     finally:
         srv.shutdown()
+
+
+def test_characters_add_list_show_and_a_job_naming_one(service, tmp_path):
+    """`cmrt characters add/list/show` on a real service, then a spec naming the stored
+    character: the job holds its definition; a bad file exits 2 naming the field."""
+    client, url, _tmp, _done = service
+    mine = ROOT / "examples" / "my_character.yaml"
+    p = _cli(url, "characters", "add", str(mine), "--name", "client_mine")
+    assert p.returncode == 0, p.stderr
+    assert "character client_mine stored" in p.stdout
+    again = _cli(url, "characters", "add", str(mine), "--name", "client_mine")
+    assert again.returncode == 2 and "name: a character named 'client_mine' exists" in \
+        again.stderr
+    listed = _cli(url, "characters", "list")
+    assert listed.returncode == 0 and re.search(r"^client_mine +stored +1\.793 +74\.97 +13 ",
+                                                listed.stdout, re.M), listed.stdout
+    shown = json.loads(_cli(url, "characters", "show", "client_mine", "--json").stdout)
+    assert shown["definition"] == yaml.safe_load(mine.read_text())
+    bad = yaml.safe_load(mine.read_text())
+    bad["segments"][2]["mass"] = 1e-9
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+    q = _cli(url, "characters", "add", str(tmp_path / "bad.yaml"), "--name", "bad_one")
+    assert q.returncode == 2 and "definition: segments[2].mass: must be at least 0.1 kg" in \
+        q.stderr and "Traceback" not in q.stderr
+    assert client.characters()["total"] == 1
+    job = client.submit({**bend("stored_char"), "character": {"model": "client_mine"}})
+    assert client.job(job.id).data["spec"]["character"]["definition"] == shown["definition"]

@@ -1,6 +1,9 @@
-"""Every command the README shows, run as written (the project rule), in a scratch folder.
+"""Every command the README and its command pages show, run as written (the project rule),
+in a scratch folder.
 
-`test_every_readme_command_is_covered` reads the README's ```sh blocks and fails on a command
+The pages are README.md, docs/cli.md (every `cmrt` command) and docs/api.md (the HTTP API by
+curl); a line shown on two of them (the README repeats a few) runs once.
+`test_every_readme_command_is_covered` reads their ```sh blocks and fails on a command
 no test here runs, so a command added to the README without a test fails the suite. How each
 one runs (and the few substitutions, each said where it is made):
   * long runs get tiny budgets, not other arguments: the scratch folder's
@@ -43,6 +46,8 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
+#: The pages whose ```sh blocks run here, in reading order.
+COMMAND_PAGES = (README, ROOT / "docs" / "cli.md", ROOT / "docs" / "api.md")
 VENV_BIN = ROOT / ".venv" / "bin"
 PG_URL = os.environ.get(
     "CMRT_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
@@ -53,10 +58,11 @@ TINY = {"popsize": 4, "max_evaluations": 4, "min_evaluations": 0}
 
 
 def readme_commands() -> list[str]:
-    """The commands of the README's ```sh blocks: continuation lines and open quotes joined,
-    comment-only and output lines (`# ...`) left out."""
+    """The commands of the command pages' ```sh blocks: continuation lines and open quotes
+    joined, comment-only and output lines (`# ...`) left out, a line shown twice kept once."""
     out = []
-    for block in re.findall(r"```sh\n(.*?)```", README.read_text(), re.S):
+    text = "\n".join(page.read_text() for page in COMMAND_PAGES)
+    for block in re.findall(r"```sh\n(.*?)```", text, re.S):
         cur = ""
         for line in block.splitlines():
             cur = f"{cur}\n{line}" if cur else line
@@ -66,7 +72,7 @@ def readme_commands() -> list[str]:
                 shlex.split(cur, comments=True)
             except ValueError:  # an open quote: the command goes on
                 continue
-            if cur.strip() and not cur.lstrip().startswith("#"):
+            if cur.strip() and not cur.lstrip().startswith("#") and cur.strip() not in out:
                 out.append(cur.strip())
             cur = ""
     return out
@@ -236,15 +242,17 @@ def test_cli_block(scratch, first_family_form):
                 _family_members(d, pca.split()[2])
                 _run(pca.replace("--out bend_basis.json", "--out BASIS.json"), d)
             if "--warm-start R.json" in form:
-                shutil.copy(d / "fast.json", d / "R.json")
+                shutil.copy(d / "results" / "fast_bend.json", d / "R.json")
             p = _run(form, d)
             ran.append(form)
             if " --json" in form:
                 json.loads(p.stdout.strip().splitlines()[-1])
             elif form.split()[1] == "sweep":  # the table: a row per force, the survived runs
                 assert "forward 0.4 s: survived" in p.stdout, p.stdout
-    assert (d / "fast.json").exists() and (d / "bend_basis.json").exists()
+    assert (d / "results" / "fast_bend.json").exists() and (d / "bend_basis.json").exists()
     assert (d / "curve.json").exists() and (d / "OUT.csv").read_text().startswith("t,")
+    assert (d / "fast_bend.bvh").read_text().startswith("HIERARCHY\nROOT pelvis\n")
+    assert (d / "fast_bend.csv").read_text().startswith("t,root_x,root_y,root_angle,waist,")
     assert any("--resume" in f for f in ran) and any("--extrapolate" in f for f in ran)
     for replay in ("flat.html", "fast_bend.html"):  # self-contained replay files, < 1 MB
         html = (d / replay).read_text()
@@ -445,9 +453,23 @@ def test_client_commands(scratch, tmp_path):
         assert [m["value"] for m in shown["members"]] == [0.3, 0.4, 0.5, 0.6]
         assert f"family {family} done" in next(
             v for k, v in out.items() if k.split()[1:3] == ["family", "watch"])
+        _readme_python(scratch, url, cli_env)
     finally:
         rc = _stop(proc)
     assert rc == 0, (tmp_path / "serve.log").read_text()[-3000:]
+
+
+def _readme_python(d: Path, url: str, env: dict[str, str]) -> None:
+    """The README's ```python blocks, run as written against the server at `url` (the
+    README's http://127.0.0.1:8000 is that server's address)."""
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    assert blocks, "the README shows no Python"
+    for i, code in enumerate(blocks):
+        script = d / f"readme_python_{i}.py"
+        script.write_text(code.replace("http://127.0.0.1:8000", url))
+        p = _run(f".venv/bin/python {script.name}", d, env)
+        status = p.stdout.split()[0]
+        assert status in ("converged", "stopped"), p.stdout
 
 
 def _redis_db() -> str:
@@ -594,6 +616,8 @@ def test_servers_and_every_curl(scratch, tmp_path, pg_url):
             ok = {202, 409} if c.endswith("# 202; 409 if already finished") else range(200, 300)
             if c.endswith("# 200, or 409 until its first candidate"):
                 ok = {200, 409}
+            if c.endswith("# 200, or 404 until its first candidate"):
+                ok = {200, 404}
             assert code in ok, f"{c!r} answered {code}: {p.stdout[-1500:]}"
         assert len(statuses) > 20, statuses  # every curl line of the README ran
         # leave nothing running: cancel what the README's submissions started, except the

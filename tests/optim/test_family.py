@@ -23,7 +23,7 @@ from synthetic import LineFamily
 from optim.executors import PoolExecutor
 from optim.family.checks import family_checks, reconstruction_errors
 from optim.family.plan import MEMBER, PROBES, REDUCED, REFERENCE, plan_runs, ready_runs, run_start
-from optim.family.spec import FamilyError, member_spec, parse_family
+from optim.family.spec import SWITCH_DISTANCE, FamilyError, member_spec, parse_family
 from optim.family_run import run_family
 from optim.result import OptimizationResult
 
@@ -132,7 +132,7 @@ def test_checks_on_a_family_with_a_known_basis() -> None:
     a = np.linspace(0.2, 0.6, d)
     u1 = np.ones(d) / np.sqrt(d)
     u2 = np.where(np.arange(d) % 2 == 0, 1.0, -1.0) / np.sqrt(d)
-    # every member on the plane a + s u1 + t u2 but 3.5, which is 0.08 (RMS) off it along u3
+    # every member on the plane a + s u1 + t u2 but 3.5, which is 0.2 (RMS) off it along u3
     u3 = np.zeros(d)
     u3[0], u3[1] = 1.0, 1.0
     u3 -= (u3 @ u1) * u1 + (u3 @ u2) * u2
@@ -140,7 +140,7 @@ def test_checks_on_a_family_with_a_known_basis() -> None:
     coords = {1.0: (-0.2, 0.1), 1.5: (-0.1, -0.05), 2.0: (0.0, 0.08), 2.5: (0.1, -0.1),
               3.0: (0.15, 0.0), 3.5: (0.2, 0.05)}
     params = {v: a + s * u1 + t * u2 for v, (s, t) in coords.items()}
-    params[3.5] = params[3.5] + 0.08 * np.sqrt(d) * u3
+    params[3.5] = params[3.5] + 0.2 * np.sqrt(d) * u3
     results = {f"member-cold-{v:g}": _result(fs, v, p, 2.0 + v, [3.0 + v, 2.0 + v])
                for v, p in params.items()}
     # the cold run at 3.5 (the member) reached 4.0 at 50 evaluations, its final best;
@@ -152,8 +152,12 @@ def test_checks_on_a_family_with_a_known_basis() -> None:
 
     members = {v: results[f"member-cold-{v:g}"] for v in VALUES}
     errs = reconstruction_errors(2, members)
-    assert errs[3.5] == pytest.approx(0.08, rel=1e-9)  # the plane of the others: its offset
-    assert all(errs[v] < fs.switch_threshold for v in VALUES if v != 3.5)
+    assert errs[3.5] == pytest.approx(0.2, rel=1e-9)  # the plane of the others: its offset
+    # the switch check is the library's: neighbours' parameters more than 0.15 (RMS) apart;
+    # on the plane the steps are 0.03-0.07, and 3.5 lies 0.2 off it
+    dist = {m.value: m.distance for m in checks.members}
+    assert dist[1.0] is None and all(dist[v] < 0.1 for v in VALUES if v not in (1.0, 3.5))
+    assert dist[3.5] > 0.2 > fs.switch_threshold == SWITCH_DISTANCE
     assert checks.switches == [3.5]
     row, = checks.rows
     # the basis without 3.5 is the plane: two components explain all of its variance

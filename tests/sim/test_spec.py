@@ -11,7 +11,9 @@ from sim.errors import SpecError
 from sim.spec import TaskSpec, load_spec, parse_spec
 
 EXAMPLES_DIR = Path(__file__).resolve().parents[2] / "examples"
-EXAMPLES = sorted(EXAMPLES_DIR.glob("*.yaml"))
+#: The example specs (examples/ also holds a user's character file, which is no spec).
+EXAMPLES = sorted(p for p in EXAMPLES_DIR.glob("*.yaml")
+                  if "segments" not in yaml.safe_load(p.read_text()))
 
 
 def _load(name: str) -> dict:

@@ -138,9 +138,9 @@ const CMRT = (() => {
   const COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b",
                    "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"];
 
-  // A link to a replay page. A followed link cannot send the token header, so with a token
-  // set the click first asks POST /links for a signed, short-lived URL (service.links) and
-  // opens that; the token itself never enters a URL.
+  // A link to a replay page (or a job's motion file). A followed link cannot send the token
+  // header, so with a token set the click first asks POST /links for a signed, short-lived
+  // URL (service.links) and opens that; the token itself never enters a URL.
   function replayLink(path, text, attrs) {
     return el("a", Object.assign({href: path, class: "replay-link"}, attrs || {}, {
       onclick: async (ev) => {

@@ -39,12 +39,13 @@
     const checks = f.checks;
     const byValue = new Map((checks ? checks.members : []).map(m => [m.value, m]));
     fill("members", [leaf, "objective", "no CMRT", "fell", "task success", "evaluations",
-                     "reconstruction error", "switch", "run"],
+                     "reconstruction error", "distance from the previous", "switch", "run"],
       (f.members || []).map(m => {
         const c = byValue.get(m.value) || {};
         return [m.value, m.objective, m.baseline_objective, m.fell ? "fell" : "",
                 m.task_success === null ? "-" : String(m.task_success), m.evaluations,
-                c.reconstruction_error, c.switch ? "SWITCH" : "", m.run];
+                c.reconstruction_error, c.distance, c.switch ? "SWITCH from the previous" : "",
+                m.run];
       }));
     const runs = f.runs.filter(r => r.curve && r.curve.length);
     if (runs.length) {
@@ -73,7 +74,8 @@
       setText("table2-note", `worst relative error ${pct(m.worst_relative_error)}; median ` +
         `speed-up to convergence ${times(m.speedup_converged)}, to the full-space objective ` +
         `${times(m.speedup_to_full)}` + (checks.switches.length
-          ? `; strategy switches at ${checks.switches.join(", ")}` : ""));
+          ? `; strategy switches (CMRTs more than ${checks.switch_threshold} apart) just below ` +
+            `${checks.switches.join(", ")}` : ""));
     } else {
       setText("table2-note", "computed when every run has finished");
     }

@@ -38,6 +38,13 @@
     links.appendChild(CMRT.replayLink(base + "/replay",
                                       "Replay the best candidate (with and without anticipation)",
                                       {id: "replay-link"}));
+    if (j.best_objective !== null && j.best_objective !== undefined) {
+      // The best candidate's motion as files (docs/export.md), signed like the replay link.
+      links.appendChild(CMRT.replayLink(base + "/motion.bvh", "Motion (BVH)",
+                                        {id: "motion-bvh"}));
+      links.appendChild(CMRT.replayLink(base + "/motion.csv", "Motion (CSV)",
+                                        {id: "motion-csv"}));
+    }
     links.appendChild(el("a", {href: base}, "job JSON"));
     if (j.cmrt_id) {
       links.appendChild(el("a", {href: "/dashboard/library?" + new URLSearchParams(

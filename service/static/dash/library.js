@@ -75,7 +75,11 @@
   // ---- interpolation ----------------------------------------------------------------------
   function interpForm() {
     const along = clear(document.getElementById("along"));
-    for (const k of keys) along.appendChild(el("option", {value: k}, k));
+    // the parameters the family varies most come first, so the preview opens on one it varies
+    const varied = [...keys].sort((a, b) => values(b).length - values(a).length ||
+                                           keys.indexOf(a) - keys.indexOf(b));
+    for (const k of varied) along.appendChild(el("option", {value: k}, k));
+    along.value = varied[0];
     along.onchange = () => { fixedInputs(); preview(); };
     fixedInputs();
   }

@@ -23,6 +23,22 @@
   }
   function fmt(v, d) { return v === null || v === undefined ? "-" : Number(v).toFixed(d); }
 
+  // The clip's motion files (BVH and CSV, written by the service's sim.export and carried in
+  // the document) as downloads: object URLs of the text, no network.
+  function downloads(c, k) {
+    const stem = doc.spec.name.replace(/[^A-Za-z0-9_.-]/g, "_") +
+      (c.cmrt && c.cmrt.source !== "none" ? "_cmrt" : "_flat");
+    const box = el("span", { class: "downloads" }, " motion at " + c.motion.fps + " fps: ");
+    [["bvh", "text/plain"], ["csv", "text/csv"]].forEach(function (f, j) {
+      const url = URL.createObjectURL(new Blob([c.motion[f[0]]], { type: f[1] }));
+      if (j) box.appendChild(document.createTextNode(", "));
+      box.appendChild(el("a", { href: url, download: stem + "." + f[0],
+                                class: "download-" + f[0], "data-clip": String(k) },
+                         f[0].toUpperCase()));
+    });
+    return box;
+  }
+
   // ---- layout --------------------------------------------------------------------------
   const title = doc.spec.name + " (" + doc.spec.task_type + ", family " + doc.spec.family + ")";
   document.title = "Replay: " + doc.spec.name;
@@ -60,6 +76,7 @@
       line += ", task " + (o.task_success ? "succeeded" : "failed");
     }
     cap.appendChild(document.createTextNode(line));
+    if (c.motion) cap.appendChild(downloads(c, k));
     cap.querySelector("strong").style.color = CLIP_COLOURS[k % CLIP_COLOURS.length];
     const canvas = el("canvas", { class: "stage", "data-clip": String(k) });
     box.appendChild(canvas);
@@ -69,7 +86,7 @@
   });
   const legend = el("div", { class: "legend" },
     "CM: circle, its ground projection: dashed line and tick; CM reference: vertical line; " +
-    "CP: triangle on the ground; support: thick bar; task window: shaded on the plots.");
+    "CoP: triangle on the ground; support: thick bar; task window: shaded on the plots.");
   root.appendChild(legend);
   const plotsBox = el("div", { class: "plots" });
   root.appendChild(plotsBox);
@@ -295,7 +312,7 @@
     plots.push(u);
   }
   function colour(k) { return CLIP_COLOURS[k % CLIP_COLOURS.length]; }
-  addPlot("CP error e(t) = CP - support centre", "mm", clips.map(function (c, k) {
+  addPlot("CoP error e(t) = CoP - support centre", "mm", clips.map(function (c, k) {
     return { label: c.label, stroke: colour(k), width: 1.5 };
   }), clips.map(function (c) { return column(c, "error"); }));
   addPlot("CMRT displacement", "mm", clips.map(function (c, k) {
