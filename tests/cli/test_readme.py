@@ -169,6 +169,7 @@ COVERED = {
     ".venv/bin/cmrt jobs": "test_client_commands",
     ".venv/bin/cmrt watch": "test_client_commands",
     ".venv/bin/cmrt library": "test_client_commands",
+    ".venv/bin/cmrt motion import": "test_motion_import_commands",
 }
 
 
@@ -257,6 +258,23 @@ def test_cli_block(scratch, first_family_form):
     for replay in ("flat.html", "fast_bend.html"):  # self-contained replay files, < 1 MB
         html = (d / replay).read_text()
         assert 'id="replay-data"' in html and len(html.encode()) < 1_000_000
+
+
+def test_motion_import_commands(scratch):
+    """Every `cmrt motion import` line in each form, with the repository's tests/data (the
+    clips) beside the scratch folder's examples; the README's line makes the shipped example."""
+    d = scratch
+    if not (d / "tests").exists():
+        (d / "tests").symlink_to(ROOT / "tests")
+    lines = [_strip_comment(c) for c in readme_commands()
+             if c.startswith(".venv/bin/cmrt motion import")]
+    assert len(lines) >= 2
+    for line in lines:
+        for form in _expand_optional(line):
+            p = _run(form, d)
+            assert "wrote " in p.stdout and "clipped: " in p.stdout, p.stdout
+    made = d / "motion_bend.yaml"
+    assert made.read_bytes() == (ROOT / "examples" / "motion_bend.yaml").read_bytes()
 
 
 def test_family_command(scratch, first_family_form):
