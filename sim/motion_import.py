@@ -391,8 +391,10 @@ def _section(clip: BvhClip, start: float | None, end: float | None) -> tuple[int
         if not math.isfinite(v) or not 0.0 <= v <= duration + 1e-9:
             raise MotionImportError(f"{name}: must be from 0 to the clip's {duration:g} s, "
                                     f"got {v:g}")
-    first = int(math.ceil(s / clip.frame_time - 1e-9))
-    last = min(int(math.floor(e / clip.frame_time + 1e-9)), clip.frames - 1)
+    # A frame within a hundredth of a frame of a bound is in: a file's Frame Time is rounded
+    # (0.016667 for 60 Hz puts frame 150 at 2.50002 s).
+    first = int(math.ceil(s / clip.frame_time - 1e-2))
+    last = min(int(math.floor(e / clip.frame_time + 1e-2)), clip.frames - 1)
     if last - first < 1:
         raise MotionImportError(f"--start/--end: the section [{s:g}, {e:g}] s holds fewer "
                                 "than 2 frames")

@@ -37,7 +37,7 @@ def test_the_example_is_what_its_command_makes(tmp_path):
     p = _cmrt(*_documented_command(), "--out", str(out))
     assert p.returncode == 0, p.stderr
     assert out.read_bytes() == EXAMPLE.read_bytes()
-    assert p.stdout.splitlines()[0].startswith("clip: cmu_02_06_bend.bvh: frames 0-180")
+    assert p.stdout.splitlines()[0].startswith("clip: cmu_02_06_bend.bvh: frames 0-150")
     assert "clipped: none" in p.stdout and f"wrote {out}" in p.stdout
     docs = (ROOT / "docs" / "motion.md").read_text()
     assert " ".join(_documented_command()) in docs.replace("\\\n", "").replace("  ", " ")
@@ -47,10 +47,10 @@ def test_the_humanoid_performs_the_clip_standing_and_a_cmrt_lowers_its_objective
     p = _cmrt("simulate", str(EXAMPLE), "--json")
     assert p.returncode == 0, p.stderr
     flat = json.loads(p.stdout)
-    assert not flat["fell"] and flat["sim_seconds"] == pytest.approx(5.0)
+    assert not flat["fell"] and flat["sim_seconds"] == pytest.approx(4.5)
     spec = tmp_path / "short.yaml"
     spec.write_text(yaml.safe_dump({
-        "name": "motion_bend_short", "clip": {"preparation": 1, "duration": 3.0, "decay": 1},
+        "name": "motion_bend_short", "clip": {"preparation": 1, "duration": 2.5, "decay": 1},
         "task": {"file": str(EXAMPLE)},
         "optimize": {"popsize": 6, "max_evaluations": 18, "min_evaluations": 0,
                      "sigma0": 0.05}}))
