@@ -252,6 +252,8 @@ def test_cli_block(scratch, first_family_form):
                 assert "forward 0.4 s: survived" in p.stdout, p.stdout
     assert (d / "results" / "fast_bend.json").exists() and (d / "bend_basis.json").exists()
     assert (d / "curve.json").exists() and (d / "OUT.csv").read_text().startswith("t,")
+    assert (d / "fast_bend.bvh").read_text().startswith("HIERARCHY\nROOT pelvis\n")
+    assert (d / "fast_bend.csv").read_text().startswith("t,root_x,root_y,root_angle,waist,")
     assert any("--resume" in f for f in ran) and any("--extrapolate" in f for f in ran)
     for replay in ("flat.html", "fast_bend.html"):  # self-contained replay files, < 1 MB
         html = (d / replay).read_text()
@@ -633,6 +635,8 @@ def test_servers_and_every_curl(scratch, tmp_path, pg_url):
             ok = {202, 409} if c.endswith("# 202; 409 if already finished") else range(200, 300)
             if c.endswith("# 200, or 409 until its first candidate"):
                 ok = {200, 409}
+            if c.endswith("# 200, or 404 until its first candidate"):
+                ok = {200, 404}
             assert code in ok, f"{c!r} answered {code}: {p.stdout[-1500:]}"
         assert len(statuses) > 20, statuses  # every curl line of the README ran
         # leave nothing running: cancel what the README's submissions started, except the

@@ -175,3 +175,28 @@ def test_names_a_bvh_reader_cannot_split_are_made_safe(bend):
     mocap = read(bvh_text(odd, sample_motion(ev, 10.0)))
     assert mocap.get_joints_names()[:2] == ["pelvis", "upper_body"]
     assert csv_text(ch, sample_motion(ev, 10.0)).count("\n") == _frame_count(ev.steps, 10) + 1
+
+
+@pytest.mark.parametrize("model", ["sumo", "lion"])
+def test_every_segment_of_another_character_is_where_ode_had_it(model):
+    """Nothing in the writer is the humanoid's: the sumo's and the 23-segment lion's files put
+    every joint and End Site where ODE had that point of its body, at three frames."""
+    from sim import parse_spec
+
+    spec = parse_spec({"name": f"{model}_stand", "character": {"model": model},
+                       "clip": {"preparation": 0.2, "duration": 0.1, "decay": 0.2},
+                       "task": {"type": "quiet_stance"}})
+    ev = evaluate(spec, None, traces=True)
+    ch = spec.load_character()
+    mocap = read(export_text(ch, ev, "bvh", 50.0))
+    assert sorted(mocap.get_joints_names()) == sorted(ch.body_names)
+    worst = 0.0
+    for i in (0, 10, 20):  # 50 fps frames at 0, 0.2, 0.4 s: replay frames 0, 20, 40
+        pts = world_points(mocap, i)
+        for b, name in enumerate(ch.body_names):
+            leaf = b not in ch.parent
+            sim = world(ev.frames.poses[2 * i][b], ch.com0[b],
+                        end_site(ch, b) if leaf else ch.anchor0[b])
+            worst = max(worst, float(np.max(np.abs(pts[f"{name}/end" if leaf else name]
+                                                   - sim))))
+    assert worst < 1e-4
