@@ -335,11 +335,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     from cli.characters import add_parsers as add_character_parsers
     from cli.family import add_parsers as add_family_parsers
+    from cli.motion import add_parsers as add_motion_parsers
     from cli.remote import add_parsers
 
     add_parsers(sub)  # submit, jobs, watch, library
     add_family_parsers(sub)  # family run
     add_character_parsers(sub)  # characters list | add | show
+    add_motion_parsers(sub)  # motion import
     return p
 
 
