@@ -169,6 +169,7 @@ COVERED = {
     ".venv/bin/cmrt jobs": "test_client_commands",
     ".venv/bin/cmrt watch": "test_client_commands",
     ".venv/bin/cmrt library": "test_client_commands",
+    ".venv/bin/cmrt characters": "test_client_commands",
     ".venv/bin/cmrt motion import": "test_motion_import_commands",
 }
 
@@ -471,10 +472,28 @@ def test_client_commands(scratch, tmp_path):
         assert [m["value"] for m in shown["members"]] == [0.3, 0.4, 0.5, 0.6]
         assert f"family {family} done" in next(
             v for k, v in out.items() if k.split()[1:3] == ["family", "watch"])
+        _readme_characters(scratch, cli_env)
         _readme_python(scratch, url, cli_env)
     finally:
         rc = _stop(proc)
     assert rc == 0, (tmp_path / "serve.log").read_text()[-3000:]
+
+
+def _readme_characters(d: Path, env: dict[str, str]) -> None:
+    """The `cmrt characters` lines (add, then list and show), each distinct form once: the
+    character is stored, listed and shown with its definition."""
+    lines = [_strip_comment(c) for c in readme_commands()
+             if c.split()[:2] == [".venv/bin/cmrt", "characters"]]
+    forms = list(dict.fromkeys(f for line in lines for f in _expand_optional(line)))
+    assert [f.split()[2] for f in forms][:1] == ["add"] and len(forms) >= 5, forms
+    out = {form: _run(form, d, env).stdout for form in forms}
+    assert "character my_character stored" in out[forms[0]]
+    listed = next(v for k, v in out.items() if k.split()[2] == "list" and "--json" not in k)
+    assert re.search(r"^my_character +stored +1\.793 +74\.97 +13 ", listed, re.M), listed
+    shown = json.loads(next(v for k, v in out.items() if k.split()[2] == "show"
+                            and k.endswith("--json")))
+    assert shown["definition"] == yaml.safe_load((d / "examples" / "my_character.yaml")
+                                                 .read_text())
 
 
 def _readme_python(d: Path, url: str, env: dict[str, str]) -> None:

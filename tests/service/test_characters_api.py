@@ -131,3 +131,20 @@ def test_a_spec_naming_a_stored_character_gets_its_definition(client):
     r = client.post("/jobs", json={"spec": _bend({"model": "nobody"})})
     assert r.status_code == 422
     assert r.json()["detail"].startswith("spec: character.model: unknown character 'nobody'")
+
+
+def test_simulations_and_families_take_a_stored_character_by_name(client):
+    from svc_helpers import QUIET
+
+    client.post("/characters", json={"name": "mine", "definition": MINE})
+    r = client.post("/simulations", json={"spec": {**QUIET, "character": {"model": "mine"}}})
+    assert r.status_code == 200, r.text
+    assert r.json()["status"] == "done" and not r.json()["fell"]
+    fam = {"spec": {**_bend({"model": "mine"}), "optimize": {"max_evaluations": 4,
+                                                             "min_evaluations": 0,
+                                                             "popsize": 4}},
+           "param": "clip.duration", "values": [0.3, 0.4, 0.5], "k": 2}
+    r = client.post("/families", json=fam)
+    assert r.status_code == 202, r.text
+    stored = client.get(f"/families/{r.json()['id']}").json()["spec"]["spec"]
+    assert stored["character"]["definition"] == MINE

@@ -5,6 +5,7 @@ optimises like a shipped character."""
 from __future__ import annotations
 
 import copy
+import math
 import random
 from pathlib import Path
 from typing import Any
@@ -232,3 +233,51 @@ def test_no_definition_raises_anything_but_a_named_spec_error():
             assert str(err).startswith("spec: character"), (path, err)
             refused += 1
     assert refused > 500
+
+
+def _at_the_edges() -> list[tuple[str, dict]]:
+    """Definitions at the bounds' edges: each must simulate to its end (falling is allowed)."""
+    out = []
+
+    def variant(what: str, change) -> None:
+        d = copy.deepcopy(MINE)
+        change(d)
+        out.append((what, d))
+
+    def light_feet(d: dict) -> None:  # the lightest allowed, 248 times lighter than the trunk
+        for name in ("foot_r", "foot_l"):
+            _i, s = _seg(d, name)
+            _seg(d, "pelvis")[1]["mass"] += s["mass"] - 0.12
+            s.update(mass=0.12, inertia=0.12 * 0.01**2)
+
+    variant("lightest feet", light_feet)
+    variant("smallest inertias", lambda d: [s.update(inertia=s["mass"] * 0.01**2)
+                                            for s in d["segments"]])
+    variant("largest inertias", lambda d: [s.update(inertia=s["mass"] * 0.5**2)
+                                           for s in d["segments"]])
+    variant("weakest torques", lambda d: d.update(torque_limit=1.0))
+    variant("heaviest tracking", lambda d: [s["joint"].update(weight=100.0)
+                                            for s in d["segments"][1:]])
+
+    def long_tail(d: dict) -> None:  # 48 segments: a 35-link tail behind the pelvis
+        parent = "pelvis"
+        for k in range(35):
+            x = -0.05 - 0.02 * k
+            d["segments"].append({"name": f"tail{k}", "parent": parent, "mass": 0.2,
+                                  "inertia": 0.2 * 0.01**2, "com": [x, 1.0],
+                                  "joint": {"name": f"tail{k}", "anchor": [x + 0.01, 1.0],
+                                            "limits": [-30, 30], "weight": 0.1}})
+            parent = f"tail{k}"
+        d["reference"]["mass"] = round(sum(s["mass"] for s in d["segments"]), 6)
+
+    variant("48 segments", long_tail)
+    return out
+
+
+@pytest.mark.parametrize(("what", "definition"), _at_the_edges(),
+                         ids=[w for w, _ in _at_the_edges()])
+def test_definitions_at_the_bounds_simulate_to_their_end(what, definition):
+    stance = {**STANCE, "clip": {"preparation": 0.0, "duration": 1.0, "decay": 0.0}}
+    spec = parse_spec(_spec(stance, {"definition": definition}))
+    objective, _fell = _objective(spec)
+    assert math.isfinite(objective), what
