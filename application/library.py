@@ -114,7 +114,7 @@ def library_entry(spec: TaskSpec, params: Any, *, objective: float, fell: bool,
         values = [[float(a), float(b)]
                   for a, b in zip(spline.values, spline.vertical_values, strict=True)]
     return CmrtEntry(
-        family=spec.family_name, character=spec.character.model_dump(mode="json"),
+        family=spec.family_name, character=spec.character.identity(),
         task_parameters=spec.task_parameters(), preparation=spec.clip.preparation,
         duration=spec.clip.duration, decay=spec.clip.decay,
         params=[float(v) for v in params], knots=[float(v) for v in spline.knot_times],
@@ -218,7 +218,7 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
     records what it came from and the small step it is searched with."""
     params = spec.task_parameters()
     family = spec.family_name
-    character = spec.character.model_dump(mode="json")
+    character = spec.character.identity()
 
     def like(k: CmrtKey) -> bool:  # the same clip around the task window, the same character
         return (abs(k.preparation - spec.clip.preparation) <= 1e-9

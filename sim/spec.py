@@ -52,7 +52,7 @@ from pydantic import (
 )
 from pydantic.fields import FieldInfo
 
-from cmrt.canonical import canonical_json, text_hash
+from cmrt.canonical import canonical_json, document_hash, text_hash
 from cmrt.specfile import SpecReadError, read_spec_file
 from sim.character import (
     DATA_DIR,
@@ -181,6 +181,15 @@ class CharacterRef(_Strict):
         out = handler(self)
         if self.definition is None:
             out.pop("definition", None)
+        return out
+
+    def identity(self) -> dict[str, Any]:
+        """What tells this character from another (the library's `character` of a CMRT): its
+        model, height and mass, and for a definition the hash of the definition's canonical
+        text in its place (the definition itself is in the spec the library keeps)."""
+        out = self.model_dump(mode="json")
+        if self.definition is not None:
+            out["definition_hash"] = document_hash(out.pop("definition"))
         return out
 
     @property

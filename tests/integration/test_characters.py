@@ -12,6 +12,7 @@ import yaml
 from conftest import submit, wait_job
 
 from cli.main import main
+from cmrt.canonical import document_hash
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 #: Two generations of four: the job machinery whole, ~2 s of the workers' CPU.
@@ -39,6 +40,10 @@ def test_a_users_character_gives_the_command_lines_objective_on_celery(api, tmp_
     assert repr(job["best_objective"]) == repr(cli["objective"])
     best = api.get(f"/jobs/{job_id}/best").json()
     assert repr(best["params"]) == repr(cli["params"])
+    # its library CMRT tells the character by the definition's hash (the spec holds it whole)
+    entry = api.get(f"/cmrts/{job['cmrt_id']}").json()
+    assert entry["character"] == {"model": "it_mine", "height": 1.7928, "mass": 74.97,
+                                  "definition_hash": document_hash(definition)}
     # the inline definition is the same job: its spec document is the stored one
     again = api.post("/jobs", json={"spec": dict(spec, character={
         "model": "it_mine", "definition": definition}), "seed": 5, "start": "cold"})

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 import yaml
 
+from cmrt.canonical import document_hash
 from optim.executors import SerialExecutor
 from optim.run import optimize
 from sim.character import DATA_DIR
@@ -281,3 +282,12 @@ def test_definitions_at_the_bounds_simulate_to_their_end(what, definition):
     spec = parse_spec(_spec(stance, {"definition": definition}))
     objective, _fell = _objective(spec)
     assert math.isfinite(objective), what
+
+
+def test_the_librarys_identity_of_a_character():
+    """A shipped character is told by its dump (as it always was); a definition by its hash."""
+    shipped = parse_spec(copy.deepcopy(BEND)).character
+    assert shipped.identity() == shipped.model_dump(mode="json")
+    mine = parse_spec(_spec(BEND, {"definition": MINE, "model": "mine"})).character
+    assert mine.identity() == {"model": "mine", "height": 1.7928, "mass": 74.97,
+                               "definition_hash": document_hash(MINE)}
