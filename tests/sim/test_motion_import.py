@@ -291,3 +291,26 @@ def test_bad_options_name_the_option():
                         (ImportOptions(joints=("wrist",)), "--joints: 'wrist' is not a mapped")):
         with pytest.raises(MotionImportError, match=words.replace("[", r"\[")):
             import_motion(WALK, "humanoid", None, opts)
+
+
+def test_mixamo_names_are_known(tmp_path):
+    """The CMU walk with its joints renamed as Mixamo names them: the Mixamo map is chosen
+    and gives the CMU map's angles where both follow the same bones."""
+    rename = {"Hips": "Hips", "LowerBack": "Spine", "Neck": "Neck", "Head": "Head"}
+    for side in ("Left", "Right"):
+        for part in ("UpLeg", "Leg", "Foot", "ToeBase", "Arm", "ForeArm", "Hand"):
+            rename[f"{side}{part}"] = f"{side}{part}"
+    text = WALK.read_text()
+    for old, new in rename.items():
+        text = text.replace(f"JOINT {old}\n", f"JOINT mixamorig:{new}\n").replace(
+            f"ROOT {old}\n", f"ROOT mixamorig:{new}\n")
+    path = tmp_path / "walk_mixamo.bvh"
+    path.write_text(text)
+    opts = ImportOptions(start=0.1, cutoff=0.0, legs="each")
+    mix, cmu = import_motion(path, "humanoid", None, opts), import_motion(WALK, "humanoid",
+                                                                          None, opts)
+    assert mix.map_name == "mixamo" and cmu.map_name == "cmu"
+    j = cmu.spec["task"]["joints"]
+    a, b = np.array(mix.spec["task"]["frames"]), np.array(cmu.spec["task"]["frames"])
+    same = [k for k, h in enumerate(j) if h != "neck"]  # Mixamo's head bone is Neck -> Head
+    assert np.array_equal(a[:, same], b[:, same])
