@@ -11,7 +11,9 @@ option: one line naming it, exit 2, nothing written.
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
+from pathlib import Path
 from typing import Any
 
 from cmrt.cmdline import die
@@ -51,7 +53,11 @@ def cmd_motion_import(args: argparse.Namespace) -> int:
     options = ImportOptions(args.start, args.end, args.rate, args.cutoff, args.legs,
                             tuple(args.joints) if args.joints else None, args.name)
     imp = import_motion(args.clip, args.character, args.map, options)
-    parse_spec(imp.spec, args.out)  # what is written is a spec the simulator takes
+    block = imp.spec["character"]
+    if "file" in block:  # a character file: named relative to the written spec, as specs do
+        rel = os.path.relpath(Path(block["file"]).resolve(), Path(args.out).resolve().parent)
+        imp.spec["character"] = {"file": Path(rel).as_posix()}
+    parse_spec(imp.inline_spec(), args.out)  # what is written is a spec the simulator takes
     text = spec_text(imp, command_line(args))
     try:
         atomic_write_text(args.out, text)
@@ -73,7 +79,9 @@ def add_parsers(sub: Any) -> None:
         "onto the character's hinges, resample it and keep it inside the joint limits; write "
         "a task spec that cmrt simulate and cmrt optimize take as it is (docs/motion.md).")
     i.add_argument("clip", metavar="CLIP.bvh")
-    i.add_argument("--character", default="humanoid", help="a character (default humanoid)")
+    i.add_argument("--character", default="humanoid",
+                   help="a shipped character's name (default humanoid) or a character file "
+                        "(.yaml/.json, docs/characters.md), named in the spec by its path")
     i.add_argument("--map", metavar="MAP.yaml",
                    help="which clip bone each character segment follows (default: the "
                         "character's own segment names, else the built-in CMU and Mixamo "

@@ -380,6 +380,14 @@ class MotionImport:
     legs_averaged: list[tuple[str, ...]] = field(default_factory=list)
     legs_spread: float = 0.0  # degrees: the largest difference the averaging removed
     filtered: tuple[float, float] = (0.0, 0.0)  # (cutoff Hz, largest change in degrees)
+    #: A character given by its file: the spec's block as the command line inlines it.
+    inline_character: dict[str, Any] | None = None
+
+    def inline_spec(self) -> dict[str, Any]:
+        """The spec as the command line reads it (a character file's definition inline)."""
+        if self.inline_character is None:
+            return self.spec
+        return {**self.spec, "character": self.inline_character}
 
 
 def _section(clip: BvhClip, start: float | None, end: float | None) -> tuple[int, int]:
@@ -492,6 +500,35 @@ def average_legs(character: Character, hinges: list[str], angles: np.ndarray
     return out, groups, spread
 
 
+CHARACTER_FILE_SUFFIXES = (".yaml", ".yml", ".json")
+
+
+def _character(character: str) -> tuple[Character, dict[str, Any], dict[str, Any] | None]:
+    """A shipped character by name, or a character file (a name ending .yaml, .yml or .json,
+    docs/characters.md): the character, the spec's `character` block (`{model: NAME}` or
+    `{file: PATH}`) and, for a file, the block as the command line inlines it."""
+    if Path(character).suffix not in CHARACTER_FILE_SUFFIXES:
+        return load_character(character), {"model": character}, None
+    from cmrt.specfile import SpecReadError, read_document
+    from sim.spec import CharacterRef
+
+    try:
+        data = read_document(character, "the character file")
+    except SpecReadError as err:
+        raise MotionImportError(f"--character: {err}") from None
+    inline: dict[str, Any] = {"definition": data}
+    stem = Path(character).stem
+    if re.fullmatch(r"[a-z0-9_]{1,64}", stem):  # as the command line names it (cmrt.specfile)
+        inline["model"] = stem
+    try:
+        ref = CharacterRef.model_validate(inline)
+    except ValueError as err:
+        msg = str(err).splitlines()
+        raise MotionImportError(f"--character: {character}: {' '.join(msg[1:3]).strip()}"
+                                ) from None
+    return ref.load(), {"file": character}, inline
+
+
 @dataclass(frozen=True)
 class ImportOptions:
     """What `cmrt motion import` may choose: the section (s of the clip), the rate written,
@@ -519,7 +556,7 @@ def import_motion(path: str | Path, character: str = "humanoid",
         raise MotionImportError(f"--cutoff: must be 0 (none) or a positive number of Hz, got "
                                 f"{o.cutoff:g}")
     clip = read_bvh(path)
-    ch = load_character(character)
+    ch, block, inline = _character(character)
     smap = choose_map(clip, ch, map_path)
     first, last = _section(clip, o.start, o.end)
     r = _rate(clip, o.rate)
@@ -548,7 +585,7 @@ def import_motion(path: str | Path, character: str = "humanoid",
     rounded = np.round(rel, ANGLE_DECIMALS) + 0.0  # + 0.0: no -0.0 in the file
     spec = {
         "name": stem,
-        "character": {"model": character},
+        "character": block,
         "clip": {"preparation": PREPARATION_SECONDS, "duration": round(seconds, 9),
                  "decay": DECAY_SECONDS},
         "task": {"type": "motion", "rate": r, "start": PREPARATION_SECONDS,
@@ -556,7 +593,7 @@ def import_motion(path: str | Path, character: str = "humanoid",
                  "frames": [[float(v) for v in row] for row in rounded]},
     }
     out = MotionImport(spec, [], times, angles, clipped, 1.0 / clip.frame_time, first, last,
-                       smap.name, groups, spread, (o.cutoff, change))
+                       smap.name, groups, spread, (o.cutoff, change), inline)
     out.report = _report(clip, smap, sag, out, ch)
     return out
 
@@ -612,7 +649,7 @@ def spec_text(imp: MotionImport, command: str) -> str:
     t = s["task"]
     head = [f"# {line}" for line in (f"Made by: {command}", *imp.report)]
     body = [f"name: {s['name']}",
-            f"character: {{model: {s['character']['model']}}}",
+            "character: {" + ", ".join(f"{k}: {v}" for k, v in s["character"].items()) + "}",
             f"clip: {{preparation: {s['clip']['preparation']:g}, duration: "
             f"{s['clip']['duration']!r}, decay: {s['clip']['decay']:g}}}",
             "task:", "  type: motion", f"  rate: {t['rate']:g}", f"  start: {t['start']:g}",

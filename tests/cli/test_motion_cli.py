@@ -93,3 +93,22 @@ def test_a_broken_clip_names_its_line(tmp_path):
     bad.write_text("\n".join(lines) + "\n")
     p = _cmrt("motion", "import", str(bad), "--out", str(tmp_path / "m.yaml"))
     assert p.returncode == 2 and f"{bad}: line 201: frame" in p.stderr, p.stderr
+
+
+def test_a_user_character_file_takes_the_clip(tmp_path, monkeypatch, capsys):
+    """--character FILE: the spec names the file relative to itself (the command line inlines
+    it when it reads the spec) and the user's humanoid performs the bend standing."""
+    monkeypatch.chdir(ROOT)
+    out = tmp_path / "specs" / "bend_mine.yaml"
+    args = _documented_command()
+    args[args.index("--character") + 1] = "examples/my_character.yaml"
+    assert main([*args, "--out", str(out)]) == 0
+    block = yaml.safe_load(out.read_text())["character"]
+    assert (out.parent / block["file"]).resolve() == ROOT / "examples" / "my_character.yaml"
+    capsys.readouterr()
+    assert main(["simulate", str(out), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert not res["fell"]
+    assert main([*args[:args.index("--character") + 1], "examples/none.yaml",
+                 "--out", str(tmp_path / "x.yaml")]) == 2
+    assert "--character: examples/none.yaml: cannot read" in capsys.readouterr().err
