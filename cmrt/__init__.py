@@ -8,6 +8,8 @@ stored as a `store.records.CmrtRecord`, served by `application.library`). Its mo
 - `cmrt.settings`: the one configuration of every process (the `CMRT_*` variables);
 - `cmrt.canonical`: the canonical text and hash of a document that is stored or crosses a
   process boundary (a task spec, a family request);
+- `cmrt.specfile`: a spec file as every command line reads it, the blocks it takes from other
+  files (`task: {file: ...}`, `character: {file: ...}`) inline;
 - `cmrt.cmdline`: what every command line shares (the `cmrt` command and `python -m service` /
   `python -m worker`): the one-line error, argument types, a process's settings and logging.
 
