@@ -1,6 +1,6 @@
 """The `cmrt` command line (console script `cmrt = cli.main:main`): simulate, optimize, bench,
-sweep, pca, interpolate, serve, worker; and the client commands submit, jobs, watch, library
-(`cli/remote.py`, talking to a running service).
+sweep, robustness, pca, interpolate, serve, worker; and the client commands submit, jobs, watch,
+library (`cli/remote.py`, talking to a running service).
 
 Domain errors become one clear message on stderr and exit status 2; nothing is written then.
 """
@@ -196,11 +196,19 @@ def cmd_optimize(args: argparse.Namespace) -> int:
         "evaluations": res.evaluations, "iterations": res.iterations,
         "stop_rule": res.stop_rule, "wall_seconds": res.wall_seconds,
     }
+    if res.robust is not None:
+        summary["robust"] = res.robust
     if args.json:
         print(json.dumps(summary))
-    else:
-        for k, v in summary.items():
+        return 0
+    for k, v in summary.items():
+        if k != "robust":
             print(f"{k:>18}: {_fmt(v)}")
+    for v in (res.robust or {}).get("variants", []):
+        at = ", ".join(f"{p} = {x:g}" for p, x in v["values"].items())
+        verdict = "stands" if not v["fell"] else f"falls {v['fall_direction']}"
+        task = {True: "task done", False: "task failed", None: ""}[v["task_success"]]
+        print(f"{'variant':>18}: {at}: {_fmt(v['objective'])} {verdict} {task}".rstrip())
     return 0
 
 
@@ -296,6 +304,45 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- robustness -------------------------------------------------------------------------------
+def cmd_robustness(args: argparse.Namespace) -> int:
+    from optim.executors import PoolExecutor, SerialExecutor
+    from optim.result import OptimizationResult
+    from optim.robustness import holds, robustness_spec, run_robustness, table
+    from optim.spline import check_params
+    from sim import load_spec
+
+    spec = load_spec(args.spec)
+    path, lo, hi = args.vary
+    try:
+        lo, hi = float(lo), float(hi)
+    except ValueError:
+        return die(f"--vary {path} {lo} {hi}: LO and HI must be numbers")
+    canonical = robustness_spec(spec, path, lo, hi, args.steps)  # checked before any run
+    result = OptimizationResult.load(args.cmrt)
+    params = check_params(spec, result.params_array)
+    executor = SerialExecutor() if args.workers <= 1 else PoolExecutor(args.workers)
+    t0 = time.perf_counter()
+    try:
+        rows = run_robustness(canonical, params, executor)
+    finally:
+        executor.close()
+    wall = time.perf_counter() - t0
+    values = [r.value for r in rows]
+    if args.json:
+        print(json.dumps({
+            "spec": spec.name, "cmrt": args.cmrt, "path": path, "range": [lo, hi],
+            "rows": [r.to_dict() for r in rows],
+            "holds": holds([r.cmrt for r in rows], values),
+            "flat_holds": holds([r.flat for r in rows], values), "wall_seconds": wall}))
+    else:
+        print(f"{spec.name} with {args.cmrt} at {len(rows)} values of {path} from {lo:g} to "
+              f"{hi:g}: {2 * len(rows)} clips, {wall:.1f} s on {args.workers} worker"
+              f"{'s' if args.workers > 1 else ''}")
+        print(table(path, rows))
+    return 0
+
+
 # ---- serve / worker ---------------------------------------------------------------------------
 def cmd_driver(args: argparse.Namespace) -> int:
     """Job and family drivers in a process of their own (no HTTP): the scanner takes every
@@ -329,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The `cmrt` command's parser; subcommands in the order `cmrt --help` lists them."""
     p = argparse.ArgumentParser(prog="cmrt", description="Anticipatory balance: CMRT service")
     sub = p.add_subparsers(dest="command", required=True)
-    _add_spec_commands(sub)  # simulate, optimize, bench, sweep
+    _add_spec_commands(sub)  # simulate, optimize, bench, sweep, robustness
     _add_result_commands(sub)  # pca, interpolate
     _add_service_commands(sub)  # serve, driver, worker
 
@@ -346,7 +393,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_spec_commands(sub: Any) -> None:
-    """The commands that run a task spec on this machine: simulate, optimize, bench, sweep."""
+    """The commands that run a task spec on this machine: simulate, optimize, bench, sweep,
+    robustness."""
     s = sub.add_parser("simulate", help="simulate a task spec and print its objective")
     s.add_argument("spec")
     g = s.add_mutually_exclusive_group()
@@ -405,6 +453,22 @@ def _add_spec_commands(sub: Any) -> None:
                    help="process pool size (1: in this process)")
     w.add_argument("--json", action="store_true")
     w.set_defaults(func=cmd_sweep)
+    r = sub.add_parser("robustness", help="where a CMRT holds: it and the flat spline at every "
+                       "value of one of the spec's numbers over a range",
+                       description="Simulate a CMRT (a result file) and the flat spline at "
+                       "STEPS evenly spaced values (ends included) of one number of the spec "
+                       "(a dotted path, as `family run --param` takes it) and print, per value, "
+                       "stands or falls (time, direction), the task's success and the "
+                       "objective, then the ranges where each holds.")
+    r.add_argument("spec")
+    r.add_argument("--cmrt", required=True, metavar="RESULT.json", help="the CMRT to judge")
+    r.add_argument("--vary", nargs=3, required=True, metavar=("PATH", "LO", "HI"),
+                   help="e.g. task.mass 112 168")
+    r.add_argument("--steps", type=positive_int, default=9, help="values, 2-32 (default 9)")
+    r.add_argument("--workers", type=positive_int, default=1,
+                   help="process pool size (1: in this process)")
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=cmd_robustness)
 
 
 def _add_result_commands(sub: Any) -> None:

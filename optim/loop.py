@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from optim import rankcut
+from optim import rankcut, robust
 from optim.cmaes import CmaOptimizer, GenerationStats, StopRules
 from optim.errors import EvaluationError
 from optim.outcome import EvalOutcome
@@ -150,23 +150,28 @@ class StepResult:
 
 
 def step(opt: CmaOptimizer, space: SearchSpace, evaluator: CandidateEvaluator) -> StepResult:
-    """One generation: ask, evaluate through `evaluator`, tell. Raises EvaluationError when
-    the evaluator returns the wrong number of outcomes or every candidate failed."""
+    """One generation: ask, evaluate through `evaluator`, tell. A robust spec's candidates are
+    evaluated at their K variants, each its own evaluation point, and aggregated
+    (`optim.robust`). Raises EvaluationError when the evaluator returns the wrong number of
+    outcomes or every candidate failed."""
     generation = opt.iterations
     xs = opt.ask()
     full = [space.to_full(x) for x in xs]
-    outs = evaluator.evaluate(generation, full)
-    if len(outs) != len(xs):
+    pts = robust.points(space.spec, full)
+    outs = evaluator.evaluate(generation, pts)
+    if len(outs) != len(pts):
         raise EvaluationError(
-            f"generation {generation}: {len(outs)} outcomes for {len(xs)} candidates"
+            f"generation {generation}: {len(outs)} outcomes for {len(pts)} evaluation points"
         )
-    if not rankcut.verify(outs, opt.cut_margin):
+    margin = opt.cut_margin if robust.cut_allowed(space.spec) else None
+    if not rankcut.verify(outs, margin):
         # Never expected (the executors cut only under the condition): evaluate the cut
-        # candidates in full, one at a time (a single candidate is never cut).
+        # points in full, one at a time (a single point is never cut).
         outs = list(outs)
         for i, o in enumerate(outs):
             if o.cut:
-                outs[i] = evaluator.evaluate(generation, [full[i]])[0]
+                outs[i] = evaluator.evaluate(generation, [pts[i]])[0]
+    outs = robust.aggregate(space.spec, outs)
     if all(o.error is not None for o in outs):
         raise EvaluationError(
             f"every candidate of generation {generation} failed to evaluate; first error: "
@@ -218,6 +223,9 @@ class FinalEvaluation:
     best: EvalOutcome
     #: Search-space point of `best_params` (the reduced coordinates with a basis).
     best_x: np.ndarray
+    #: A robust spec's variants' own outcomes (`sim.robust.variant_values` order), else empty.
+    flat_variants: tuple[EvalOutcome, ...] = ()
+    best_variants: tuple[EvalOutcome, ...] = ()
 
     @property
     def winner(self) -> str:
@@ -237,19 +245,24 @@ def final_evaluation(
     opt: CmaOptimizer, space: SearchSpace, evaluator: CandidateEvaluator
 ) -> FinalEvaluation:
     """Evaluate the flat spline (index 0) and the best candidate (index 1) as generation
-    FINAL_GENERATION. Raises EvaluationError if either fails."""
+    FINAL_GENERATION (a robust spec: each at its K variants, indices 0..K-1 and K..2K-1).
+    Raises EvaluationError if either fails."""
     best_x = opt.best_x
     if best_x is None:
         raise EvaluationError("no generation was told: there is no best candidate")
     flat = flat_params(space.spec)
     best = space.to_full(best_x)
-    outs = evaluator.evaluate(FINAL_GENERATION, [flat, best])
-    if len(outs) != 2:
-        raise EvaluationError(f"final evaluation: {len(outs)} outcomes for 2 candidates")
-    for label, out in zip(("baseline (flat spline)", "best CMRT"), outs, strict=True):
+    pts = robust.points(space.spec, [flat, best])
+    outs = evaluator.evaluate(FINAL_GENERATION, pts)
+    if len(outs) != len(pts):
+        raise EvaluationError(f"final evaluation: {len(outs)} outcomes for {len(pts)} points")
+    k = robust.samples(space.spec)
+    both = robust.aggregate(space.spec, outs)
+    for label, out in zip(("baseline (flat spline)", "best CMRT"), both, strict=True):
         if out.error is not None:
             raise EvaluationError(f"final evaluation of the {label} failed: {out.error}")
-    return FinalEvaluation(flat, outs[0], best, outs[1], best_x)
+    variants = (tuple(outs[:k]), tuple(outs[k:])) if k > 1 else ((), ())
+    return FinalEvaluation(flat, both[0], best, both[1], best_x, *variants)
 
 
 __all__ = [

@@ -32,8 +32,17 @@ import numpy as np
 
 from cmrt.canonical import canonical_json, text_hash
 from optim.outcome import CuttableObjective, EvalOutcome
+from optim.robust import split_point
 from optim.spline import decode
-from sim.spec import CanonicalSpec, TaskSpec, canonical_spec, stored_spec, text_spec
+from sim.robust import variant_document, variant_values
+from sim.spec import (
+    CanonicalSpec,
+    TaskSpec,
+    canonical_spec,
+    parse_spec,
+    stored_spec,
+    text_spec,
+)
 
 if TYPE_CHECKING:
     from sim.clip_result import Evaluation
@@ -48,6 +57,8 @@ SIMULATOR_CACHE_SIZE = 4
 class _Entry:
     canonical: Any  # CanonicalSpec, or another typed document (`SpecCache.typed`)
     simulator: Any = None
+    #: A robust spec's variants' simulators by index (kept and dropped with `simulator`).
+    variants: dict[int, Any] = field(default_factory=dict)
     objectives: dict[Any, Any] = field(default_factory=dict)
 
 
@@ -101,21 +112,24 @@ class SpecCache:
         """The spec of a document stored with its hash (a job's), parsed only on a miss."""
         return self.get(hash, lambda: stored_spec(document, hash, source))
 
-    def simulator(self, canonical: CanonicalSpec) -> Any:
-        """The spec's `Rollout`, built on first use."""
+    def simulator(self, canonical: CanonicalSpec, variant: int | None = None) -> Any:
+        """The spec's `Rollout` (or that of its robust variant `variant`, `sim.robust`), built
+        on first use. A spec's variants count as one simulator of the cache: a robust job
+        evaluates all K in turn."""
         with self._lock:
             entry = self._entry(canonical.hash, lambda: canonical)
-            if entry.simulator is None:
-                from sim.rollout import Rollout  # lazy: heavy, absent in a numerics-only setup
-
-                entry.simulator = Rollout(entry.canonical.spec)
+            if variant is None and entry.simulator is None:
+                entry.simulator = _rollout(entry.canonical.spec)
+            elif variant is not None and variant not in entry.variants:
+                entry.variants[variant] = _rollout(_variant_spec(entry.canonical, variant))
             self._sims[canonical.hash] = None
             self._sims.move_to_end(canonical.hash)
             while len(self._sims) > self.simulators:
                 old, _ = self._sims.popitem(last=False)
                 if old in self._d:
                     self._d[old].simulator = None
-            return entry.simulator
+                    self._d[old].variants = {}
+            return entry.simulator if variant is None else entry.variants[variant]
 
     def objective(self, canonical: CanonicalSpec,
                   factory: Callable[[TaskSpec], Any] | None = None) -> Any:
@@ -134,6 +148,20 @@ class SpecCache:
         with self._lock:
             self._d.clear()
             self._sims.clear()
+
+
+def _rollout(spec: TaskSpec) -> Any:
+    from sim.rollout import Rollout  # lazy: heavy, absent in a numerics-only setup
+
+    return Rollout(spec)
+
+
+def _variant_spec(canonical: CanonicalSpec, k: int) -> TaskSpec:
+    """Variant k of a robust spec (`sim.robust.variant_document`), validated."""
+    robust = canonical.spec.optimize.robust
+    values = variant_values(robust)[k]
+    return parse_spec(variant_document(canonical.document, values),
+                      f"{canonical.spec.name} variant {k}")
 
 
 #: This process's one spec cache.
@@ -185,8 +213,11 @@ class SimObjective(CuttableObjective):
         """The full `Evaluation` of `params` (None: no CMRT); `stop_above`: see
         `sim.rollout.Rollout.run`."""
         canonical = self.canonical()
-        sim = SPECS.simulator(canonical)
-        cmrt = None if params is None else decode(canonical.spec, params)
+        variant = None
+        if params is not None:
+            params, variant = split_point(canonical.spec, params)
+        sim = SPECS.simulator(canonical, variant)
+        cmrt = None if params is None else decode(sim.spec, params)
         if stop_above is None:
             return sim.run(cmrt, traces=traces)
         return sim.run(cmrt, traces=traces, stop_above=stop_above)

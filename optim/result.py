@@ -17,6 +17,10 @@ File format (JSON object, `format` = "cmrt-result/1"); units: seconds, metres.
                          best_so_far
     basis_id             id of the PCA basis if optimised in a reduced space, else null
     reduced_params       the best point in the reduced search box [0, 1]^k, else null
+    robust               a robust spec's (absent otherwise): vary ({path: [lo, hi]}), samples,
+                         aggregate, and per variant (`sim.robust.variant_values` order) of the
+                         best CMRT (`variants`) and the flat spline (`baseline_variants`):
+                         values, objective, fell, fall_time, fall_direction, task_success
 
 `save` writes atomically (temp file, fsync, rename). `load`/`from_dict` check every field and
 raise `ResultFileError` naming the file and the field for missing, mistyped or inconsistent data.
@@ -85,9 +89,13 @@ _FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "baseline_fall_direction": (_opt(lambda v: v in FALL_DIRECTIONS),
                                 'null, "forward" or "backward"'),
     "baseline_task_success": (_opt(lambda v: isinstance(v, bool)), "null, true or false"),
+    "robust": (_opt(lambda v: isinstance(v, dict) and isinstance(v.get("variants"), list)
+                    and all(isinstance(r, dict) and _num(r.get("objective"))
+                            for r in v["variants"])),
+               "null or an object whose variants list each has a numeric objective"),
 }
 _OPTIONAL = {"vertical_values", "basis_id", "reduced_params", "history", "fall_direction",
-             "task_success", "baseline_fall_direction", "baseline_task_success"}
+             "task_success", "baseline_fall_direction", "baseline_task_success", "robust"}
 _HISTORY_KEYS = ("iteration", "evaluations", "best", "median", "worst", "sigma", "best_so_far")
 
 
@@ -119,6 +127,7 @@ class OptimizationResult:
     task_success: bool | None = None
     baseline_fall_direction: str | None = None
     baseline_task_success: bool | None = None
+    robust: dict[str, Any] | None = None
 
     @classmethod
     def build(
@@ -142,6 +151,7 @@ class OptimizationResult:
         task_success: bool | None = None,
         baseline_fall_direction: str | None = None,
         baseline_task_success: bool | None = None,
+        robust: Mapping[str, Any] | None = None,
     ) -> OptimizationResult:
         """A result for `spec` (a TaskSpec, or a `sim.spec.CanonicalSpec` whose document it
         keeps without dumping the spec again) whose best CMRT is `params` (spline data
@@ -181,6 +191,7 @@ class OptimizationResult:
             task_success=task_success,
             baseline_fall_direction=baseline_fall_direction,
             baseline_task_success=baseline_task_success,
+            robust=None if robust is None else copy.deepcopy(dict(robust)),
         )
         result.__dict__["_task_spec"] = spec  # typed already: no parse on use
         return result
@@ -266,6 +277,7 @@ class OptimizationResult:
             "task_success": self.task_success,
             "baseline_fall_direction": self.baseline_fall_direction,
             "baseline_task_success": self.baseline_task_success,
+            **({} if self.robust is None else {"robust": self.robust}),
         }
 
     def to_json(self) -> str:
@@ -334,6 +346,7 @@ class OptimizationResult:
             task_success=d.get("task_success"),
             baseline_fall_direction=d.get("baseline_fall_direction"),
             baseline_task_success=d.get("baseline_task_success"),
+            robust=None if d.get("robust") is None else dict(d["robust"]),
         )
         try:
             res.spline()

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from optim import robust
 from optim._io import atomic_write_bytes
 from optim.cmaes import CmaOptimizer, GenerationStats
 from optim.errors import CheckpointError
@@ -189,7 +190,8 @@ def optimize(
     opt = state.restore() if state is not None else None
     if opt is None:
         opt = new_optimizer(spec, space, seed)
-    evaluator = BatchEvaluator(executor, fn, opt.cut_margin if cut else None)
+    margin = opt.cut_margin if cut and robust.cut_allowed(spec) else None
+    evaluator = BatchEvaluator(executor, fn, margin)
     stop_rule = run_generations(opt, space, evaluator, state, after_generation=progress)
     final = final_evaluation(opt, space, evaluator)
     wall_before = 0.0 if state is None else state.wall_before
@@ -228,6 +230,7 @@ def result_of(
         task_success=final.best.task_success,
         baseline_fall_direction=final.flat.fall_direction,
         baseline_task_success=final.flat.task_success,
+        robust=robust.robust_document(space.spec, final.best_variants, final.flat_variants),
     )
 
 

@@ -68,6 +68,7 @@ from sim.character_rules import HEIGHT_RANGE, MASS_RANGE
 from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
 from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
+from sim.robust import RobustConfig, check_robust
 from sim.specbase import Samples, StrictModel, count, quantity
 from sim.tasks import TASK_TYPES
 from sim.tasks.base import MAX_CLIP_SECONDS
@@ -284,6 +285,16 @@ class OptimizeConfig(_Strict):
     max_evaluations: count(1, MAX_EVALUATIONS, "evaluations") = 2000
     window: count(1, MAX_EVALUATIONS, "evaluations") = 100
     improvement: quantity(1e-4, 0.999, "(fraction)") = 0.05
+    #: One CMRT for a range of scenes (`sim.robust`); None: the spec's one scene.
+    robust: RobustConfig | None = None
+
+    @model_serializer(mode="wrap")
+    def _without_absent_robust(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """A spec without a robust block keeps the canonical form (and hash) it always had."""
+        out = handler(self)
+        if self.robust is None:
+            out.pop("robust", None)
+        return out
 
 
 class TaskSpec(_Strict):
@@ -350,6 +361,7 @@ class TaskSpec(_Strict):
                 raise ValueError(
                     f"{where}: must be below half the support length minus "
                     f"{MIN_COP_BOX_WIDTH} m ({room:.3f} m for this character), got {v:g}")
+        check_robust(self)  # last: the variants are checked against a valid spec
         return self
 
     # ---- derived quantities -------------------------------------------------------------
@@ -438,7 +450,7 @@ def error_location(loc: Sequence[str | int]) -> list[str | int]:
     return out
 
 
-def _format_error(err: ValidationError) -> str:
+def format_error(err: ValidationError) -> str:
     lines = []
     for e in err.errors():
         loc = error_location(e["loc"])
@@ -480,7 +492,7 @@ def parse_spec(data: Any, source: str = "<spec>") -> TaskSpec:
     try:
         return TaskSpec.model_validate(data)
     except ValidationError as err:
-        raise SpecError(f"{source}: {_format_error(err)}") from None
+        raise SpecError(f"{source}: {format_error(err)}") from None
 
 
 def load_spec(path: str | Path) -> TaskSpec:

@@ -52,6 +52,7 @@ from optim.loop import (
     run_generations,
 )
 from optim.outcome import EvalOutcome
+from optim.robust import cut_allowed
 from optim.run import result_of
 from sim.errors import SpecError
 from sim.spec import TaskSpec
@@ -377,7 +378,7 @@ class JobDriver:
         if self._took_over is not None:
             self._log_takeover(opt.iterations)
         t_job = time.monotonic()
-        evaluator = StoreEvaluator(self, opt.cut_margin)
+        evaluator = StoreEvaluator(self, opt.cut_margin if cut_allowed(spec) else None)
         stop_rule = run_generations(opt, self.space, evaluator, state)
         # A driver may have died after adding the entry or the result: the final evaluations
         # are stored, so asking them again costs no simulation.
