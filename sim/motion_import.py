@@ -17,9 +17,12 @@ How (docs/motion.md):
    the rest pose, so that the rest pose is the character's zero pose. Where the rest pose holds
    a bone out of the plane (a T-pose's arms), the hinge's zero is the character's own zero
    pose instead (its segments' directions from `sim.character`). Angles are unwrapped in time.
-5. The angles are resampled at the chosen rate (linear interpolation between the clip's
-   frames), clipped to the character's joint limits (reported: which joint, how many frames,
-   by how much), and written relative to the standing pose, as every task's pose targets.
+5. The angles are low-pass filtered (zero phase, 6 Hz by default: a clip's jitter would be
+   hundreds of rad/s^2 in the spline's acceleration), resampled at the chosen rate (linear
+   between the clip's frames), the legs averaged left and right so that both feet stay planted
+   (a planar character stands only if its legs agree), clipped to the character's joint limits
+   (reported: which joint, how many frames, by how much), and written relative to the standing
+   pose, as every task's pose targets.
 
 Maps: the identity map when the file's joints carry the character's segment names (what
 `sim.export` writes), else the built-in maps of `sim/data/maps/` (CMU, Mixamo) that the file's

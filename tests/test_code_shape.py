@@ -57,3 +57,14 @@ def test_no_function_is_over_80_lines():
     assert len(sizes) > 1000 and sizes["cli/main.py:build_parser"] > 5  # the scan measured
     long = {where: n for where, n in sizes.items() if n > FUNCTION_LINES}
     assert long == {}, f"functions over {FUNCTION_LINES} lines: split them into named parts"
+
+
+def test_test_modules_have_unique_names():
+    """pytest imports a test module outside a package by its basename: two folders holding the
+    same name stop the whole run at collection ("import file mismatch")."""
+    seen: dict[str, list[str]] = {}
+    for path in sorted((ROOT / "tests").rglob("test_*.py")):
+        if not (path.parent / "__init__.py").exists():
+            seen.setdefault(path.name, []).append(str(path.relative_to(ROOT)))
+    assert len(seen) > 50  # the scan saw the suite
+    assert {n: w for n, w in seen.items() if len(w) > 1} == {}
