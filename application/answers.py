@@ -2,7 +2,8 @@
 
 An answer says what it is: its `source` (`member`: a CMRT the library holds, optimised at
 that value or served as it is at a neighbouring one; `interpolated`: the curve between the two
-neighbouring members; `refined`: a member a refinement job optimised at that value), the
+neighbouring members; `refined`: a member a refinement job optimised at that value; `robust`:
+a robust CMRT whose range covers the value, `robust` naming it and its range), the
 members it was built from, whether a strategy switch lies between them, and, once simulated
 (`verify`), its outcome on the spec of the query, kept in the library so that the next
 identical query costs nothing.
@@ -37,6 +38,7 @@ from typing import Any
 from application import jobs
 from application.admission import default_popsize
 from application.library import (
+    MAX_MEMBERS,
     SWITCH_DISTANCE,
     LibraryCmrt,
     nearer,
@@ -67,7 +69,7 @@ REFINE_IMPROVEMENT = 0.01
 #: A refinement's CMA-ES step in the basis's box (it starts at an answer, not from nothing).
 REFINE_SIGMA0 = 0.1
 #: What the library's sources are called in an answer.
-SOURCES = ("member", "interpolated", "refined")
+SOURCES = ("member", "interpolated", "refined", "robust")
 
 #: simulate(spec document, CMRT parameters) -> {"status": "done" | "failed", "objective",
 #: "fell", "fall_direction", "task_success", "cpu_seconds", "error"}.
@@ -136,25 +138,18 @@ def _serve(
     simulate: Simulate | None,
 ) -> tuple[dict[str, Any], list[CmrtRecord]]:
     """`serve`'s answer and the neighbouring library CMRTs it read."""
-    base, recs = neighbours_answer(repo, family, key, value, filters=filters,
-                                   extrapolate=extrapolate)
+    cover = robust_cover(repo, family, key, value, filters)
+    try:
+        base, recs = neighbours_answer(repo, family, key, value, filters=filters,
+                                       extrapolate=extrapolate)
+    except InterpolationError:
+        if cover is None:
+            raise
+        base, recs = _robust_base(family, key, value, cover[0]), [cover[0]]
     switch = _switch(recs, key) if not base["exact"] and len(recs) == 2 else None
     interp = _answer_spline(base)
     near = nearer(recs, key, value)
-    if base["exact"]:
-        primary = _Candidate(_member_source(repo, recs[0]), [recs[0]], _member_spline(recs[0]))
-        why = f"the library holds a CMRT optimised at {key} = {value:g}"
-    elif switch is not None and switch["detected"]:
-        primary = _Candidate("member", [near], _member_spline(near))
-        why = (f"a strategy switch lies between the members at {key} = "
-               f"{switch['between'][0][key]:g} and {switch['between'][1][key]:g} (their "
-               f"CMRTs are {switch['distance']:.2f} apart, above {SWITCH_DISTANCE:g}): the "
-               f"nearer member ({key} = {near.task_parameters[key]:g}) is served, not their "
-               "average")
-    else:
-        primary = _Candidate("interpolated", recs, interp)
-        why = (f"interpolated between the members at {key} = "
-               + " and ".join(f"{r.task_parameters[key]:g}" for r in recs))
+    primary, why = _primary(repo, base, recs, key, value, cover, switch, interp)
     out = {k: v for k, v in base.items() if k != "curve"}
     out["interpolation"] = {k: base[k] for k in ("length", "knot_times", "values",
                                                  "vertical_values")}
@@ -165,6 +160,7 @@ def _serve(
         verdict="unverified",
         outcome=None,
         tried=[],
+        robust=None if cover is None else {"id": cover[0].id, **cover[1]},
     )
     # the interpolation's curve is already sampled: not again on the plain path
     _set_candidate(out, primary, base["curve"] if primary.spline is interp else None)
@@ -259,6 +255,76 @@ def refine_job(
 
 
 # ---- the pieces ---------------------------------------------------------------------------
+def robust_cover(repo: Repository, family: str, key: str, value: float,
+                 filters: Mapping[str, float] | None = None
+                 ) -> tuple[CmrtRecord, dict[str, Any]] | None:
+    """The robust library CMRT (`sim.robust`) whose range covers `key` = `value` (and whose
+    other task parameters equal `filters`), the one with the lowest objective, with its range
+    {path, range, samples, aggregate}; None when no robust CMRT covers the value. The robust
+    block is read from each entry's stored spec (kept by the store after the first read)."""
+    best: tuple[CmrtRecord, dict[str, Any]] | None = None
+    for k in repo.cmrt_keys(family)[:MAX_MEMBERS]:
+        if not k.has_spec or key not in k.task_parameters:
+            continue
+        if any(abs(k.task_parameters.get(n, math.nan) - v) > 1e-9 * max(1.0, abs(v))
+               for n, v in (filters or {}).items()):
+            continue
+        rec = repo.get_cmrt(k.id)
+        rb = ((rec.spec or {}).get("optimize") or {}).get("robust")
+        if not rb:
+            continue
+        path = parse_spec(rec.spec, f"library CMRT {rec.id}").parameter_paths()[key]
+        lo, hi = rb["vary"].get(path, (math.nan, math.nan))
+        if lo <= value <= hi and (best is None or rec.objective < best[0].objective):
+            best = (rec, {"path": path, "range": [lo, hi], "samples": rb["samples"],
+                          "aggregate": rb["aggregate"]})
+    return best
+
+
+def _robust_base(family: str, key: str, value: float, rec: CmrtRecord) -> dict[str, Any]:
+    """The answer's base fields when a robust CMRT alone covers the value (no two members
+    bracket it): the robust CMRT as the one neighbour."""
+    s = _member_spline(rec)
+    return {"family": family, "key": key, "value": value, "weight": 0.0, "exact": False,
+            "extrapolated": False,
+            "neighbours": [{"id": rec.id, key: rec.task_parameters[key],
+                            "objective": rec.objective, "task_parameters": rec.task_parameters}],
+            "length": float(s.length), "knot_times": [float(v) for v in s.knot_times],
+            "values": [float(v) for v in s.values],
+            "vertical_values": None if s.vertical_values is None
+            else [float(v) for v in s.vertical_values],
+            "curve": sample_curve(s)}
+
+
+def _primary(repo: Repository, base: dict[str, Any], recs: list[CmrtRecord], key: str,
+             value: float, cover: tuple[CmrtRecord, dict[str, Any]] | None,
+             switch: dict[str, Any] | None, interp: CmrtSpline) -> tuple[_Candidate, str]:
+    """The answer served first, and why: the member optimised at the value, a robust CMRT
+    covering it, the nearer member across a switch, or the neighbours' interpolation."""
+    near = nearer(recs, key, value)
+    if base["exact"]:
+        primary = _Candidate(_member_source(repo, recs[0]), [recs[0]], _member_spline(recs[0]))
+        why = f"the library holds a CMRT optimised at {key} = {value:g}"
+    elif cover is not None:
+        primary = _Candidate("robust", [cover[0]], _member_spline(cover[0]))
+        rb = cover[1]
+        why = (f"the robust CMRT {cover[0].id} was optimised for {key} from "
+               f"{rb['range'][0]:g} to {rb['range'][1]:g} ({rb['samples']} variants, "
+               f"{rb['aggregate']} objective)")
+    elif switch is not None and switch["detected"]:
+        primary = _Candidate("member", [near], _member_spline(near))
+        why = (f"a strategy switch lies between the members at {key} = "
+               f"{switch['between'][0][key]:g} and {switch['between'][1][key]:g} (their "
+               f"CMRTs are {switch['distance']:.2f} apart, above {SWITCH_DISTANCE:g}): the "
+               f"nearer member ({key} = {near.task_parameters[key]:g}) is served, not their "
+               "average")
+    else:
+        primary = _Candidate("interpolated", recs, interp)
+        why = (f"interpolated between the members at {key} = "
+               + " and ".join(f"{r.task_parameters[key]:g}" for r in recs))
+    return primary, why
+
+
 def _member_spline(rec: CmrtRecord) -> CmrtSpline:
     return LibraryCmrt.of(rec).spline()
 
@@ -331,6 +397,7 @@ def _spec_at(rec: CmrtRecord, key: str, value: float,
             return got
     spec: TaskSpec = parse_spec(rec.spec, f"library CMRT {rec.id}")
     doc = spec.with_parameter(key, value)
+    doc["optimize"].pop("robust", None)  # the query is one scene, not a robust CMRT's range
     for name, v in (filters or {}).items():
         doc = parse_spec(doc).with_parameter(name, v)
     try:
@@ -444,4 +511,5 @@ def _what_went_wrong(t: dict[str, Any]) -> str:
 
 
 __all__ = ["REFINE_MAX_EVALUATIONS", "SOURCES", "SWITCH_DISTANCE", "WEAK_MARGIN", "AnswerError",
-           "InterpolationError", "Simulate", "library_parameter", "refine_job", "serve"]
+           "InterpolationError", "Simulate", "library_parameter", "refine_job", "robust_cover",
+           "serve"]

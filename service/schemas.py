@@ -112,6 +112,9 @@ class JobOut(BaseModel):
     cmrt_id: str | None = None
     links: dict[str, str]
     spec: dict[str, Any] | None = None
+    #: A robust job's (`optimize.robust`), once finished: the range it was optimised for and
+    #: each variant's outcome of the best CMRT and of the flat spline (the result's block).
+    robust: dict[str, Any] | None = None
 
 
 class CancelAccepted(BaseModel):
@@ -373,7 +376,7 @@ class LibraryAnswer(BaseModel):
     key: str
     value: float
     note: str | None = None
-    source: Literal["member", "interpolated", "refined"]
+    source: Literal["member", "interpolated", "refined", "robust"]
     members: list[str]
     neighbours: list[AnswerNeighbour]
     weight: float
@@ -387,6 +390,9 @@ class LibraryAnswer(BaseModel):
     tried: list[AnswerTry]
     message: str
     refine: dict[str, Any] | None = None
+    #: A robust CMRT covering the value (`source: robust`): its id, the varied path, the range,
+    #: the variants and the aggregate it was optimised for.
+    robust: dict[str, Any] | None = None
     length: float
     knot_times: list[float]
     values: list[float]
