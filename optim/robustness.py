@@ -117,9 +117,10 @@ def _cell(o: EvalOutcome) -> str:
 def table(path: str, rows: Sequence[RobustnessRow]) -> str:
     """The rows as a text table and the ranges where each holds."""
     head = f"{'stand/fall':<24}{'task':>5} {'objective':>9}"
-    lines = [f"{path:>12}  CMRT {head}  | flat spline {head}"]
+    w = max(12, len(path))
+    lines = [f"{path:>{w}}  CMRT {head}  | flat spline {head}"]
     for r in rows:
-        lines.append(f"{r.value:>12.6g}       {_cell(r.cmrt)}  |             {_cell(r.flat)}")
+        lines.append(f"{r.value:>{w}.6g}       {_cell(r.cmrt)}  |             {_cell(r.flat)}")
     values = [r.value for r in rows]
     for label, which in (("CMRT", [r.cmrt for r in rows]), ("flat spline", [r.flat for r in rows])):
         runs = holds(which, values)

@@ -149,6 +149,7 @@ COVERED = {
     ".venv/bin/cmrt interpolate": "test_cli_block",
     ".venv/bin/cmrt bench": "test_cli_block",
     ".venv/bin/cmrt sweep": "test_cli_block",
+    ".venv/bin/cmrt robustness": "test_cli_block",
     ".venv/bin/cmrt family run": "test_family_command",
     ".venv/bin/cmrt family submit": "test_client_commands",
     ".venv/bin/cmrt driver": "tests/cli/test_driver_process.py",
@@ -231,7 +232,7 @@ def test_cli_block(scratch, first_family_form):
     shutil.copy(d / "results" / "bend_0.5.json", d / "RESULT.json")
     lines = [_strip_comment(c) for c in readme_commands() if c.startswith(".venv/bin/cmrt ")]
     # outputs feed later ones
-    order = ("optimize", "pca", "interpolate", "simulate", "bench", "sweep")
+    order = ("optimize", "pca", "interpolate", "simulate", "bench", "sweep", "robustness")
     lines = sorted((c for c in lines if c.split()[1] in order),
                    key=lambda c: order.index(c.split()[1]))
     ran = []
@@ -251,6 +252,8 @@ def test_cli_block(scratch, first_family_form):
                 json.loads(p.stdout.strip().splitlines()[-1])
             elif form.split()[1] == "sweep":  # the table: a row per force, the survived runs
                 assert "forward 0.4 s: survived" in p.stdout, p.stdout
+            elif form.split()[1] == "robustness":  # a row per value, then where each holds
+                assert "flat spline holds at clip.duration" in p.stdout, p.stdout
     assert (d / "results" / "fast_bend.json").exists() and (d / "bend_basis.json").exists()
     assert (d / "curve.json").exists() and (d / "OUT.csv").read_text().startswith("t,")
     assert (d / "fast_bend.bvh").read_text().startswith("HIERARCHY\nROOT pelvis\n")
