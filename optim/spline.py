@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from optim.errors import ParamsError
+from sim.linalg import solve
 
 if TYPE_CHECKING:
     from sim.spec import CmrtConfig, TaskSpec
@@ -81,7 +82,7 @@ def clamped_cubic_coefficients(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         r[j] = 6.0 * (slope[j] - slope[j - 1])
     A[m, m - 1], A[m, m] = h[m - 1], 2.0 * h[m - 1]
     r[m] = -6.0 * slope[m - 1]
-    M = np.linalg.solve(A, r)
+    M = solve(A, r)
     coef = np.empty((m, 4))
     coef[:, 0] = y[:-1]
     coef[:, 1] = slope - h * (2.0 * M[:-1] + M[1:]) / 6.0

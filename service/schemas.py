@@ -112,6 +112,9 @@ class JobOut(BaseModel):
     cmrt_id: str | None = None
     links: dict[str, str]
     spec: dict[str, Any] | None = None
+    #: `GET /jobs/{id}` only: the distinct numeric fingerprints of the processes that evaluated
+    #: the job's candidates (more than one: workers whose bits may differ, docs/service.md).
+    fingerprints: list[str] | None = None
     #: A robust job's (`optimize.robust`), once finished: the range it was optimised for and
     #: each variant's outcome of the best CMRT and of the flat spline (the result's block).
     robust: dict[str, Any] | None = None
@@ -514,6 +517,12 @@ class Health(BaseModel):
     broker: str = Field(description='"ok", "error", or "none (embedded local process pool)"')
     executor: str
     drivers: int = Field(description="jobs and families this process drives now")
+    fingerprints: dict[str, str] = Field(
+        default_factory=dict,
+        description='numeric fingerprint per process: "api" (this process) and every live '
+                    "Celery worker by hostname")
+    mixed: bool = Field(False, description="more than one fingerprint: the fleet's results "
+                                           "may differ in their last bits")
     detail: str | None = Field(None, description="what is unreachable (degraded only)")
 
 

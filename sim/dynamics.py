@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from sim.character import ROOT_DOF, Character
+from sim.linalg import dot, gram, matvec, solve, tmatvec
 
 GRAVITY = 9.81  # m s^-2
 
@@ -240,7 +241,8 @@ def _mass_terms_into(q, qd, parent, a_par, a_chi, path, mass, inertia, M, h, c, 
     dy = c[1] - p[0, 1]
     for i in range(n):
         A_H[i] = A_H[i] - (dx * A_L[1, i] - dy * A_L[0, i])
-    cd[:] = (A_L @ qd) / mtot
+    cd[0] = dot(A_L[0], qd) / mtot
+    cd[1] = dot(A_L[1], qd) / mtot
     return alpha, p, o, omega
 
 
@@ -318,11 +320,10 @@ def inverse_dynamics(M, h, Js, qdd):
     Hinge rows: tau = M_x qdd + h_x - J_sx^T f. Returns (tau, f).
     """
     n = M.shape[0]
-    r = M[:ROOT_DOF] @ qdd + h[:ROOT_DOF]
-    Jsr = np.ascontiguousarray(Js[:, :ROOT_DOF])
-    A = Jsr.T @ Jsr
-    f = Jsr @ np.linalg.solve(A, r)
-    tau = M[ROOT_DOF:] @ qdd + h[ROOT_DOF:] - np.ascontiguousarray(Js[:, ROOT_DOF:n]).T @ f
+    r = matvec(M[:ROOT_DOF], qdd) + h[:ROOT_DOF]
+    Jsr = Js[:, :ROOT_DOF]
+    f = matvec(Jsr, solve(gram(Jsr), r))
+    tau = matvec(M[ROOT_DOF:], qdd) + h[ROOT_DOF:] - tmatvec(Js[:, ROOT_DOF:n], f)
     return tau, f
 
 
@@ -502,7 +503,7 @@ def inverse_dynamics_feet(M: np.ndarray, h: np.ndarray, Js: np.ndarray, qdd: np.
     weight between feet 0.3 m apart), i.e. each foot's own CoP beyond its toe or heel, and
     the feet tip. Returns (tau, f, p) with f per foot (fx, fy, torque about its sole centre)."""
     n = M.shape[0]
-    r = M[:ROOT_DOF] @ qdd + h[:ROOT_DOF]
+    r = matvec(M[:ROOT_DOF], qdd) + h[:ROOT_DOF]
     nf = len(sole_x)
     heel = points[0::2, 0]
     toe = points[1::2, 0]
@@ -519,7 +520,7 @@ def inverse_dynamics_feet(M: np.ndarray, h: np.ndarray, Js: np.ndarray, qdd: np.
         cops = sole_x.copy()
     else:
         moment_o = float(r[2]) + ox * fy_tot - oy * fx_tot  # about the world origin
-        p = (moment_o + float(ys @ np.full(nf, fx_tot / nf))) / fy_tot
+        p = (moment_o + dot(ys, np.full(nf, fx_tot / nf))) / fy_tot
         shares = np.zeros(nf)
         order = np.argsort(sole_x)
         rear, front = int(order[0]), int(order[-1])
@@ -543,7 +544,7 @@ def inverse_dynamics_feet(M: np.ndarray, h: np.ndarray, Js: np.ndarray, qdd: np.
         (sole_x[k] - ox) * f[3 * k + 1] - (ys[k] - oy) * f[3 * k] + f[3 * k + 2] for k in range(nf))
     for k in range(nf):
         f[3 * k + 2] += resid / nf
-    tau = M[ROOT_DOF:] @ qdd + h[ROOT_DOF:] - np.ascontiguousarray(Js[:, ROOT_DOF:n]).T @ f
+    tau = matvec(M[ROOT_DOF:], qdd) + h[ROOT_DOF:] - tmatvec(Js[:, ROOT_DOF:n], f)
     return tau, f, p
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from sim.character import ROOT_DOF, Character
 from sim.dynamics import ModelArrays, body_point, forward_kinematics, point_jacobian
+from sim.linalg import matmul, solve, tmatvec
 
 IK_TOLERANCE = 1e-4  # m (or rad): a target is reached within this
 IK_MAX_ITERATIONS = 50
@@ -117,7 +118,7 @@ def solve_ik(q0: np.ndarray, arrays: ModelArrays, limits: np.ndarray, targets: l
         for _ in range(len(hinge_cols) + 1):
             Jd = J[:, cols[free]]
             step = np.zeros(len(cols))
-            step[free] = Jd.T @ np.linalg.solve(Jd @ Jd.T + damping * np.eye(len(res)), res)
+            step[free] = tmatvec(Jd, solve(matmul(Jd, Jd.T) + damping * np.eye(len(res)), res))
             new = q[hinge_cols] + step[is_hinge]
             out = ((new < lo) & (q[hinge_cols] <= lo + 1e-12)) | (
                 (new > hi) & (q[hinge_cols] >= hi - 1e-12))

@@ -46,6 +46,7 @@ import ode
 from sim.character import ROOT_DOF, Character
 from sim.dynamics import GRAVITY, ModelArrays, forward_kinematics
 from sim.errors import SimError
+from sim.linalg import dot
 from sim.prop_bodies import CATEGORY_CHARACTER, CATEGORY_GROUND, CATEGORY_PROP, Prop, body_pose
 from sim.props import PropDef
 
@@ -437,7 +438,7 @@ class Physics:
         (the character's velocities just read) the character is judged by |qd| (SI units:
         m/s and rad/s together) against MAX_SPIN, and only the props are read from ODE."""
         if qd is not None:
-            s = float(qd @ qd)
+            s = dot(qd, qd)
             if not s < MAX_SPIN * MAX_SPIN:
                 return ("non-finite character state" if not math.isfinite(s)
                         else "character moving impossibly fast")

@@ -66,6 +66,7 @@ _STORE_RESULT = (
         cpu_seconds=bindparam("p_cpu_seconds"),
         error=bindparam("p_error"),
         details=bindparam("p_details"),
+        fingerprint=bindparam("p_fingerprint"),
         attempts=case((_EV.c.attempts < 1, 1), else_=_EV.c.attempts),
         updated_at=bindparam("p_now"),
     )
@@ -174,9 +175,11 @@ class EvaluationRepository(abc.ABC):
         cpu_seconds: float | None,
         error: str | None = None,
         details: Mapping[str, Any] | None = None,
+        fingerprint: str | None = None,
     ) -> bool:
         """Store a worker's result of an existing evaluation (the driver polls
-        `evaluation_counts` to see the generation resolved).
+        `evaluation_counts` to see the generation resolved), with the numeric fingerprint of
+        the process that computed it (`sim.fingerprint`) when given.
 
         Status `done`, or `failed` when `error` is given. First result wins, atomically: only
         a pending evaluation is changed, and True is returned only by the write that moved
@@ -221,6 +224,12 @@ class EvaluationRepository(abc.ABC):
     @abc.abstractmethod
     def evaluation_counts(self, job_id: str, generation: int) -> GenerationCounts:
         """Pending / done / failed counts of a generation."""
+
+    @abc.abstractmethod
+    def evaluation_fingerprints(self, job_id: str) -> list[str]:
+        """The distinct numeric fingerprints of the processes that evaluated the job's
+        candidates (`store_result`'s `fingerprint`), sorted; empty when none was recorded.
+        Raises NotFound."""
 
     @abc.abstractmethod
     def evaluation_summary(self, job_id: str, *, after: int = -1) -> list[dict[str, int]]:
@@ -342,7 +351,7 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
 
     def store_result(
         self, job_id, generation, index, *, objective, fell, cpu_seconds, error=None,
-        details=None,
+        details=None, fingerprint=None,
     ):  # fmt: skip
         obj = _opt_num(objective, "objective")
         status = DONE if error is None else EVAL_FAILED
@@ -353,6 +362,7 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
             "p_status": status, "p_objective": obj, "p_fell": None if fell is None else bool(fell),
             "p_cpu_seconds": _opt_num(cpu_seconds, "cpu_seconds"), "p_error": error,
             "p_details": _json(details, "details"), "p_now": self._clock(),
+            "p_fingerprint": None if fingerprint is None else str(fingerprint)[:64],
         }  # fmt: skip
         with self._evaluation_write() as conn:
             if conn.execute(self._store_result, {**key, **values}).rowcount == 1:
@@ -407,6 +417,16 @@ class SqlEvaluations(SqlBase, EvaluationRepository):
     def evaluation_counts(self, job_id, generation):
         with self._read_statement() as conn:
             return self._counts(conn, job_id, generation)
+
+    def evaluation_fingerprints(self, job_id):
+        ev = Evaluation
+        with self._read() as s:
+            self._require_job(s, job_id)
+            rows = s.execute(
+                select(ev.fingerprint).distinct()
+                .where(ev.job_id == job_id, ev.fingerprint.is_not(None))
+            ).all()
+        return sorted(r[0] for r in rows)
 
     def evaluation_summary(self, job_id, *, after=-1):
         ev = Evaluation

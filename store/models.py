@@ -188,6 +188,8 @@ class EvaluationRow(Base):
     details: Mapped[Any | None] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime())
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime())
+    #: The numeric fingerprint of the process that evaluated it (sim.fingerprint), if known.
+    fingerprint: Mapped[str | None] = mapped_column(String(64))
 
 
 class CmrtRow(Base):

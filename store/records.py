@@ -113,6 +113,7 @@ class EvaluationRecord:
     details: dict[str, Any] | None
     created_at: datetime
     updated_at: datetime
+    fingerprint: str | None = None  # the evaluating process's numeric fingerprint
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,8 @@ Idempotent and attempt-counted, with two store calls per candidate:
      and job, keys the process's one spec cache `optim.objective.SPECS`, which parses the
      stored spec only on a miss and keeps one simulator per spec);
   4. `store_result` upserts the small result keyed by (job, generation, index): the first
-     result wins, a repeated one changes nothing.
+     result wins, a repeated one changes nothing. It carries this process's numeric fingerprint
+     (worker.fingerprints; on the local pool's path, the process that started the pool's).
 An exception inside the objective is a property of the candidate (deterministic): it is stored as
 `done` with the worst objective (optim's FAILED_OBJECTIVE) and the error in `details`, so CMA-ES
 ranks it last, exactly as the CLI's executors do.
@@ -46,6 +47,7 @@ from sim.spec import TaskSpec
 from store import NotFound, Repository
 from store.records import DONE, PENDING
 from worker import faults
+from worker.fingerprints import process_fingerprint
 
 log = logging.getLogger(__name__)
 
@@ -280,7 +282,8 @@ class CandidateRun:
             self.results[index] = {"status": "lost", "error": str(out)}
             return
         changed = with_reconnect(self.repo.store_result, job_id, generation, index,
-                                 **outcome_fields(out, self.worker_name))
+                                 **outcome_fields(out, self.worker_name),
+                                 fingerprint=process_fingerprint())
         if self.notify is not None:
             self.notify(job_id, generation, index)
         self.results[index] = {"status": DONE if changed else "duplicate",

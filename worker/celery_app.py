@@ -59,6 +59,9 @@ def make_celery(
         task_track_started=False,
         imports=("worker.tasks",),
     )
+    from worker.fingerprints import FingerprintStep
+
+    app.steps["worker"].add(FingerprintStep)  # logs and reports the numeric fingerprint
     return app
 
 

@@ -50,6 +50,9 @@ def run(args: argparse.Namespace) -> int:
     import gc
 
     import worker.tasks  # noqa: F401 - the simulator and store, imported before the pool forks
+    from worker.fingerprints import process_fingerprint
+
+    process_fingerprint()  # the reference clip once, before the fork: the pool inherits it
 
     # Keep what is imported shared between the pool processes: without this, the first garbage
     # collection in each forked process writes to every object's header and so copies the

@@ -118,6 +118,7 @@ def get_job(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     job = repo.get_job(job_id)
     out = job_out(job, request, job_cmrt_id(repo, job))
     out["spec"] = job.spec
+    out["fingerprints"] = repo.evaluation_fingerprints(job_id)
     if (job.spec.get("optimize") or {}).get("robust"):
         out["robust"] = (repo.job_result(job_id) or {}).get("robust")
     return out

@@ -31,6 +31,7 @@ import numpy as np
 from sim.character import ROOT_DOF, Character
 from sim.dynamics import ModelArrays, forward_kinematics
 from sim.ik import leg_hinges
+from sim.linalg import dot
 
 #: rad: a crouch stops this far inside a leg hinge's limit (ODE's joint stops are hard).
 LIMIT_MARGIN = math.radians(2.0)
@@ -107,7 +108,7 @@ class Crouch:
 
     def _height(self, q: np.ndarray) -> float:
         _, p, _ = forward_kinematics(q, self.arrays.parent, self.arrays.a_par, self.arrays.a_chi)
-        return float(self.mass @ p[:, 1]) / self.total
+        return dot(self.mass, p[:, 1]) / self.total
 
     def _feasible(self, q: np.ndarray | None) -> bool:
         if q is None:

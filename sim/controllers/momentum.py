@@ -51,6 +51,7 @@ from sim.dynamics import (
     checked_inverse_dynamics_lift,
     momentum_bias,
 )
+from sim.linalg import dot, gram, solve, tmatvec
 from sim.trajectory import PoseTrajectory, ease
 
 QP_RATE = 60.0  # Hz
@@ -330,7 +331,7 @@ class MomentumController(Controller):
         Al = A_L / m
         ah = A_H / m
         # ah[:, None] * ah is np.outer's own product (its values), without its Python wrapper.
-        H = prm.b_l * Al.T @ Al + prm.b_h * (ah[:, None] * ah)
+        H = prm.b_l * gram(Al) + prm.b_h * (ah[:, None] * ah)
         H[hq, hq] += tracking
         H += self._qdd_regularisation
         rhs_c = np.zeros(Js.shape[0])
@@ -345,7 +346,7 @@ class MomentumController(Controller):
             r_p = (dx * (b_L[1] + m * GRAVITY) + b_H - c[1] * b_L[0]) / m
             if prm.b_p > 0.0:
                 H += prm.b_p * np.outer(a_p, a_p)
-        g = prm.b_l * Al.T @ (ldot / m) + prm.b_h * ah * (hdot / m)
+        g = prm.b_l * tmatvec(Al, ldot / m) + prm.b_h * ah * (hdot / m)
         g[hq] += prm.b_t * w2 * qdd_des
         if use_bias:
             g -= prm.b_p * a_p * r_p
@@ -360,7 +361,7 @@ class MomentumController(Controller):
         K[n:, :n] = Js
         K[n:, n:] = self._constraint_regularisation(k)
         rhs = np.concatenate([g, rhs_c])
-        x = np.linalg.solve(K, rhs)
+        x = solve(K, rhs)
         if prm.cop_box > 0.0:
             x = self._keep_cop_inside(K, rhs, x, n, a_p, r_p, A_L[1] / m,
                                       (b_L[1] + m * GRAVITY) / m,
@@ -402,8 +403,8 @@ class MomentumController(Controller):
         inequality has its constrained minimiser on that inequality's boundary, so one
         equality-constrained re-solve on the violated side is exact."""
         qdd = x[:n]
-        moment = a_p @ qdd + r_p
-        normal = a_f @ qdd + r_f
+        moment = dot(a_p, qdd) + r_p
+        normal = dot(a_f, qdd) + r_f
         if normal <= 0.0:  # no normal force planned: the wrench check hands over to the fall
             return x
         if moment > box[1] * normal:
@@ -418,4 +419,4 @@ class MomentumController(Controller):
         K2[:k, :k] = K
         K2[:n, k] = row
         K2[k, :n] = row
-        return np.linalg.solve(K2, np.append(rhs, bound * r_f - r_p))[:k]
+        return solve(K2, np.append(rhs, bound * r_f - r_p))[:k]

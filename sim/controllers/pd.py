@@ -73,6 +73,7 @@ from sim.controllers.config import ControllerConfig, ControllerContext
 from sim.controllers.momentum import FOOT_LIFT_LIMIT
 from sim.dynamics import ModelArrays, forward_kinematics
 from sim.errors import SimError
+from sim.linalg import matvec, solve, tmatvec
 from sim.specbase import quantity
 from sim.trajectory import PoseTrajectory
 
@@ -226,7 +227,7 @@ class PdServo(Controller):
             tau = self.parent_torques(obs.q, obs.qd, t)
         else:
             tau = self.world_torques(obs.q, obs.qd, t)
-        tau[self.ankles] += self.K2[self.ankles] * (self.foot_rows @ obs.qd)  # feet planted
+        tau[self.ankles] += self.K2[self.ankles] * matvec(self.foot_rows, obs.qd)  # feet planted
         if self.stable:
             tau = self.stable_torques(tau, obs)
         if max(obs.points[:, 1].tolist()) > FOOT_LIFT_LIMIT:
@@ -239,7 +240,7 @@ class PdServo(Controller):
         planar model with the feet held (M qdd + h = S^T tau + J_s^T f, J_s qdd = 0):
         tau = tau_explicit - dt (B_p qd + B_d qdd), the damping solved implicitly."""
         dt, n = self.dt, self.character.ndof
-        tau0 = tau - dt * (self.B_p @ obs.qd)
+        tau0 = tau - dt * matvec(self.B_p, obs.qd)
         js = obs.Js
         k = js.shape[0]
         K = np.zeros((n + k, n + k))
@@ -252,11 +253,11 @@ class PdServo(Controller):
         rhs[:n] = -obs.h
         rhs[ROOT_DOF:n] += tau0
         try:
-            qdd = np.linalg.solve(K, rhs)[:n]
+            qdd = solve(K, rhs)[:n]
         except np.linalg.LinAlgError:
             raise SimError("the PD servo's feet-held model is singular at this state (gains "
                            f"k2 {self.K2.max():.3g} N m s/rad at most)") from None
-        return tau0 - dt * (self.B_d @ qdd)
+        return tau0 - dt * matvec(self.B_d, qdd)
 
     # ---- the laws -------------------------------------------------------------------------
     def displacement(self, t: float) -> float:
@@ -275,7 +276,7 @@ class PdServo(Controller):
         q[ROOT_DOF:] = self.trajectory(t)[0]
         a = self.arrays
         _, p, o = forward_kinematics(q, a.parent, a.a_par, a.a_chi)
-        v = self.masses @ p - o[self.feet].mean(axis=0)  # CM from the ankles
+        v = tmatvec(p, self.masses) - o[self.feet].mean(axis=0)  # CM from the ankles
         radius = math.hypot(v[0], v[1])
         target = self.support_offset + self.displacement(t)
         return math.asin(min(max(target / radius, -1.0), 1.0)) - math.atan2(v[0], v[1])
@@ -306,14 +307,14 @@ class PdServo(Controller):
         root angle minus the lean (absolute)."""
         th_d, _, lam = self.desired_hinges(t)
         root = self.root_angle - lam if root_angle is None else root_angle
-        return root + self.lift_matrix @ th_d
+        return root + matvec(self.lift_matrix, th_d)
 
     def world_torques(self, q: np.ndarray, qd: np.ndarray, t: float) -> np.ndarray:
         """Eqs. 2-3 per segment, applied at each segment's own hinge; the root's (absolute)
         propagated to the feet (module docstring)."""
         hinge_q, hinge_qd = q[ROOT_DOF:], qd[ROOT_DOF:]
-        w_a = q[2] + self.lift_matrix @ hinge_q
-        om_a = qd[2] + self.lift_matrix @ hinge_qd
+        w_a = q[2] + matvec(self.lift_matrix, hinge_q)
+        om_a = qd[2] + matvec(self.lift_matrix, hinge_qd)
         d = self.delta
         if self.root == "person":
             # the desired chain from the actual root; the root's own motion is not fought

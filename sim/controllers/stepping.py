@@ -70,6 +70,7 @@ from sim.dynamics import (
 )
 from sim.ik import IK_DAMPING, IkResult, Target, leg_hinges, solve_ik
 from sim.ipm import StepPlan, capture_point, plan_step, replan_step, step_direction
+from sim.linalg import dot, matmul, matvec, tmatvec
 from sim.trajectory import PoseTrajectory
 
 #: A foot whose heel or toe is this low (m) touches the ground (the physics' contact margin).
@@ -420,7 +421,7 @@ class SteppingController(Controller):
     def _planned_accel(self, obs: Observation, qdd: np.ndarray, b_L0: float) -> None:
         """The horizontal CM acceleration (m/s^2) the active QP's qdd gives (b_L0: its
         velocity-product term when known)."""
-        self._a_plan = (float(obs.A_L[0] @ qdd) + b_L0) / self.character.total_mass
+        self._a_plan = (dot(obs.A_L[0], qdd) + b_L0) / self.character.total_mass
 
     # ---- phases ---------------------------------------------------------------------------
     def _feet_fixed(self, obs: Observation, t: float) -> np.ndarray:
@@ -569,9 +570,9 @@ class SteppingController(Controller):
                                       (lo, hi), self.c_ref, (float(vel[0]), 0.0), lambda: bias)
             b_L, b_H, _b_S = bias
             self._b_L0 = float(b_L[0])
-            fxg = float(obs.A_L[0] @ qdd + b_L[0])
-            fyg = float(obs.A_L[1] @ qdd + b_L[1] + m * GRAVITY)
-            hdot = float(obs.A_H @ qdd + b_H)
+            fxg = float(dot(obs.A_L[0], qdd) + b_L[0])
+            fyg = float(dot(obs.A_L[1], qdd) + b_L[1] + m * GRAVITY)
+            hdot = float(dot(obs.A_H, qdd) + b_H)
             cop = (float(obs.c[0]) + (hdot - float(obs.c[1]) * fxg) / fyg if fyg > 0.0
                    else math.nan)
             rec.solves.append((t, cop, lo, hi, fyg))
@@ -614,7 +615,7 @@ class SteppingController(Controller):
         J = Js[3 * sw:3 * sw + 3]
         b = b_S[3 * sw:3 * sw + 3]
         r = np.array([sole[sw][0], sole[sw][1], alpha[int(a.feet[sw])]])
-        v = J @ obs.qd
+        v = matvec(J, obs.qd)
         plan = self._plan
         d = FOOT_PATH_STEP
         f0, fp, fm = (np.array(plan.foot(u)) for u in (t, t + d, t - d))
@@ -623,8 +624,8 @@ class SteppingController(Controller):
         a_ref = np.array([*((fp - 2 * f0 + fm) / (d * d)), 0.0])
         a_des = SWING_STIFFNESS * (r_ref - r) + SWING_DAMPING * (v_ref - v) + a_ref
         w = np.array([FOOT_WEIGHT, FOOT_WEIGHT, FOOT_PITCH_WEIGHT])
-        H = J.T @ (w[:, None] * J)
-        g = J.T @ (w * (a_des - b))
+        H = matmul(J.T, w[:, None] * J)
+        g = tmatvec(J, w * (a_des - b))
         pel = (PELVIS_STIFFNESS * (ik_now[2] - obs.q[2])
                + PELVIS_DAMPING * ((ik_next[2] - ik_now[2]) / h - obs.qd[2]))
         H[2, 2] += PELVIS_WEIGHT

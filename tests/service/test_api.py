@@ -22,6 +22,11 @@ def test_job_lifecycle_library_and_interpolation(client):
     ja, jb = wait_job(client, a), wait_job(client, b)
     assert ja["status"] == "stopped" and ja["stop_rule"] == "max_evaluations"
     assert ja["cmrt_id"] and jb["cmrt_id"] and ja["seed"] == 1
+    # every candidate was evaluated with this process's numerics: one fingerprint, the API's
+    health = client.get("/health").json()
+    assert ja["fingerprints"] == jb["fingerprints"] == [health["fingerprints"]["api"]]
+    assert not health["mixed"] and len(health["fingerprints"]["api"]) == 16
+    assert client.get("/jobs").json()["items"][0].get("fingerprints") is None  # by id only
 
     gens = client.get(f"/jobs/{a}/generations").json()
     assert [g["iteration"] for g in gens["generations"]] == [0, 1, 2]

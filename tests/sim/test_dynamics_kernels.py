@@ -20,6 +20,7 @@ from sim.dynamics import (
     step_model_packed,
     velocity_accelerations,
 )
+from sim.linalg import matvec
 from sim.rollout import Rollout
 
 
@@ -62,7 +63,7 @@ def dense_dynamics(q, qd, parent, a_par, a_chi, path, mass, inertia):
     A_H = np.empty(n)
     for i in range(n):
         A_H[i] = A_root[i] - (dx * A_L[1, i] - dy * A_L[0, i])
-    cd = (A_L @ qd) / mtot
+    cd = matvec(A_L, qd) / mtot  # the ordered product of sim.linalg, as dynamics has it
     return M, h, alpha, p, o, omega, c, cd, A_L, A_H
 
 

@@ -195,6 +195,26 @@ def test_store_result_first_result_wins(repo: SqlRepository) -> None:
     assert repo.evaluations(job.id, 0)[2].objective == 0.5
 
 
+def test_a_job_lists_the_fingerprints_that_evaluated_it(repo: SqlRepository) -> None:
+    job = new_job(repo)
+    assert repo.evaluation_fingerprints(job.id) == []
+    repo.put_pending_evaluations(job.id, 0, [[0.1, 0.1], [0.2, 0.2], [0.3, 0.3], [0.4, 0.4]])
+    for i, fp in enumerate(["b" * 16, "a" * 16, "b" * 16, None]):
+        assert repo.store_result(job.id, 0, i, objective=1.0 + i, fell=False, cpu_seconds=0.1,
+                                 fingerprint=fp)
+    assert [e.fingerprint for e in repo.evaluations(job.id, 0)] == ["b" * 16, "a" * 16,
+                                                                    "b" * 16, None]
+    assert repo.evaluation_fingerprints(job.id) == ["a" * 16, "b" * 16]
+    # a late duplicate from another worker changes nothing, its fingerprint included
+    assert not repo.store_result(job.id, 0, 0, objective=9.0, fell=False, cpu_seconds=0.1,
+                                 fingerprint="c" * 16)
+    assert repo.evaluation_fingerprints(job.id) == ["a" * 16, "b" * 16]
+    other = new_job(repo)
+    assert repo.evaluation_fingerprints(other.id) == []
+    with pytest.raises(NotFound):
+        repo.evaluation_fingerprints("nope")
+
+
 def test_claimed_attempts_are_bounded_by_the_caller(repo: SqlRepository) -> None:
     """The worker path of a candidate that kills its worker every time."""
     max_attempts = 3

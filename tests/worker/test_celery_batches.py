@@ -110,6 +110,31 @@ def test_batched_celery_job_matches_the_local_pool_bit_for_bit(celery_worker):
     assert repo.job_cmrt(job.id).params == repo.job_cmrt(ref.id).params
 
 
+def test_the_worker_reports_its_numeric_fingerprint_and_its_evaluations_carry_it(
+        celery_worker):
+    import redis
+
+    from sim.fingerprint import numeric_fingerprint
+    from worker.fingerprints import KEY_PREFIX, TTL_SECONDS, live_fingerprints
+
+    settings, repo, worker, log = celery_worker
+    job = _job(repo, "printed")
+    assert JobDriver(repo, job.id, _executor(settings), settings).run() == STOPPED
+    mine = numeric_fingerprint().digest  # this process: another BLAS kernel, the same bits
+    assert repo.evaluation_fingerprints(job.id) == [mine]
+    assert f"numeric fingerprint {mine}" in log.read_text()
+    client = redis.Redis.from_url(settings.broker_url)
+    host = repo.evaluations(job.id, 0)[0].details["worker"].rsplit("/", 1)[0]
+    assert live_fingerprints(client)[host] == mine
+    assert 0 < client.ttl(KEY_PREFIX + host) <= TTL_SECONDS  # a dead worker's entry expires
+    app = make_celery(settings.broker_url, settings.broker_url, settings)
+    stats = app.control.inspect(destination=[host], timeout=5.0).stats()
+    assert stats[host]["cmrt_fingerprint"]["fingerprint"] == mine
+    reply = app.control.inspect(destination=[host], timeout=5.0)._request("fingerprint")
+    assert reply[host]["fingerprint"] == mine and reply[host]["versions"]["numba"]
+    assert worker.poll() is None
+
+
 def test_worker_killed_mid_batch_loses_only_its_running_candidate(celery_worker):
     settings, repo, worker, log = celery_worker
     ex = _executor(settings)

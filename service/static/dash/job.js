@@ -25,7 +25,10 @@
       ["best objective", fmt(j.best_objective, 6)],
       ["elapsed", elapsed(j.started_at, j.finished_at)],
       ["stopping rule", j.stop_rule || (CMRT.TERMINAL.includes(j.status) ? "" : "(running)")],
-      ["basis", j.basis_id], ["error", j.error]];
+      ["basis", j.basis_id], ["error", j.error],
+      ["fingerprints", (j.fingerprints || []).length > 1
+        ? j.fingerprints.join(", ") + " (mixed: evaluated by workers whose bits differ)"
+        : (j.fingerprints || []).join(", ")]];
     for (const [k, v] of items) {
       if (v === null || v === undefined || v === "") continue;
       dl.appendChild(el("div", {}, el("dt", {}, k), el("dd", {class: "v-" + k.replace(/ /g, "-")}, v)));

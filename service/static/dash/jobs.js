@@ -30,7 +30,21 @@
       el("td", {}, (j.created_at || "").replace("T", " ").slice(0, 19)));
   }
 
+  // GET /health's numeric fingerprints: a fleet with more than one is flagged (docs/service.md)
+  async function fleet() {
+    try {
+      const h = await getJson("/health");
+      const box = document.getElementById("fleet");
+      const fps = h.fingerprints || {};
+      box.hidden = !h.mixed;
+      box.textContent = h.mixed ? "Mixed numeric fingerprints: " + Object.entries(fps)
+        .map(([who, fp]) => who + " " + fp).join(", ") +
+        " (candidates evaluated on different ones may differ in their last bits)" : "";
+    } catch (e) { /* a degraded /health is shown by the requests that fail */ }
+  }
+
   async function load() {
+    fleet();
     const url = api("/jobs", {status: state.status, family: state.family, limit: PAGE,
                               offset: state.offset});
     document.getElementById("source").textContent = "GET " + url;
