@@ -8,7 +8,9 @@ one clip, so
 
 (the cap is checked between generations, so the last generation may overshoot it by fewer than
 `popsize` evaluations; the final re-evaluation of the flat spline and the best candidate adds
-2). `popsize` is the spec's, or pycma's default 4 + floor(3 ln d) for the d searched
+2). A robust spec (`optimize.robust`, K variants) simulates K clips per evaluation, each as long
+as its variant's clip: evaluations count clips (x K) and the clip length is the longest
+variant's. `popsize` is the spec's, or pycma's default 4 + floor(3 ln d) for the d searched
 coordinates. A CPU second buys roughly 14 simulated seconds on the development machine
 (`cmrt bench`), so the default ceiling of 50,000 simulated seconds is about an hour of one
 core.
@@ -27,6 +29,8 @@ from typing import Any
 from cmrt.settings import Settings
 from optim.family.plan import MEMBER, PROBES, REDUCED, plan_runs
 from optim.family.spec import MAIN, WARM, FamilySpec, member_spec
+from optim.robust import samples
+from sim.robust import variant_values
 from sim.spec import TaskSpec
 
 #: Evaluations added to the cap: the final flat-spline and best-candidate re-evaluation.
@@ -60,8 +64,8 @@ def budget(spec: TaskSpec, settings: Settings | None = None, *, dimension: int |
     """The job's budget; `dimension` is the searched one (a PCA basis' k; default the spec's)."""
     opt = spec.optimize
     popsize = opt.popsize or default_popsize(dimension or spec.cmrt_dimension)
-    evaluations = int(opt.max_evaluations) + popsize - 1 + FINAL_EVALUATIONS
-    clip = float(spec.clip.length)
+    evaluations = (int(opt.max_evaluations) + popsize - 1 + FINAL_EVALUATIONS) * samples(spec)
+    clip = _longest_clip(spec)
     return Budget(
         evaluations=evaluations,
         clip_seconds=clip,
@@ -70,16 +74,28 @@ def budget(spec: TaskSpec, settings: Settings | None = None, *, dimension: int |
     )
 
 
+def _longest_clip(spec: TaskSpec) -> float:
+    """The clip length (s), of the longest variant for a robust spec varying the clip."""
+    rb = spec.optimize.robust
+    if rb is None:
+        return float(spec.clip.length)
+    c = spec.clip
+    return max(float(v.get("clip.preparation", c.preparation) + v.get("clip.duration", c.duration)
+                     + v.get("clip.decay", c.decay)) for v in variant_values(rb))
+
+
 def check(spec: TaskSpec, settings: Settings, *, dimension: int | None = None) -> Budget:
     """The job's budget, or BudgetExceeded when it is above the server's ceiling."""
     b = budget(spec, settings, dimension=dimension)
     ceiling = settings.max_job_sim_seconds
     if b.sim_seconds > ceiling:
-        overshoot = b.evaluations - int(spec.optimize.max_evaluations)
-        most = max(0, int(ceiling // b.clip_seconds) - overshoot)
+        k = samples(spec)
+        overshoot = b.evaluations // k - int(spec.optimize.max_evaluations)
+        most = max(0, int(ceiling // b.clip_seconds) // k - overshoot)
         raise BudgetExceeded(
             f"optimize.max_evaluations: the job may simulate up to {b.sim_seconds:,.0f} s "
-            f"({b.evaluations} evaluations x {b.clip_seconds:g} s clips), above this server's "
+            f"({b.evaluations} evaluations x {b.clip_seconds:g} s clips"
+            f"{f', {k} variants per candidate' if k > 1 else ''}), above this server's "
             f"ceiling of {ceiling:,.0f} simulated seconds per job (CMRT_MAX_JOB_SIM_SECONDS); "
             f"lower optimize.max_evaluations to at most {most} or shorten the clip"
         )

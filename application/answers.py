@@ -273,12 +273,30 @@ def robust_cover(repo: Repository, family: str, key: str, value: float,
         rb = ((rec.spec or {}).get("optimize") or {}).get("robust")
         if not rb:
             continue
-        path = parse_spec(rec.spec, f"library CMRT {rec.id}").parameter_paths()[key]
+        path = _parameter_paths(rec)[key]
         lo, hi = rb["vary"].get(path, (math.nan, math.nan))
         if lo <= value <= hi and (best is None or rec.objective < best[0].objective):
             best = (rec, {"path": path, "range": [lo, hi], "samples": rb["samples"],
                           "aggregate": rb["aggregate"]})
     return best
+
+
+#: Library parameter -> spec path of robust CMRTs by id (an entry never changes): a query
+#: parses a robust CMRT's spec once per process, not at every answer.
+_PATHS: OrderedDict[str, dict[str, str]] = OrderedDict()
+_PATHS_KEPT = 1024
+
+
+def _parameter_paths(rec: CmrtRecord) -> dict[str, str]:
+    with _SPECS_AT_LOCK:
+        got = _PATHS.get(rec.id)
+    if got is None:
+        got = parse_spec(rec.spec, f"library CMRT {rec.id}").parameter_paths()
+        with _SPECS_AT_LOCK:
+            _PATHS[rec.id] = got
+            while len(_PATHS) > _PATHS_KEPT:
+                _PATHS.popitem(last=False)
+    return got
 
 
 def _robust_base(family: str, key: str, value: float, rec: CmrtRecord) -> dict[str, Any]:

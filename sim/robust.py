@@ -18,30 +18,27 @@ objective is deterministic and every process builds the same variants:
     between library versions is involved.
 A variant is the spec's document with the paths set to the variant's values and no `robust`
 block: an ordinary spec (`variant_document`). Parsing a robust spec checks every variant
-parses (`check_robust`), so a range that leaves a field's bounds or breaks a rule of the task
-is refused at the boundary, naming the path and the rule.
+parses (`sim.spec`'s validator), so a range that leaves a field's bounds or breaks a rule of
+the task is refused at the boundary, naming the path and the rule.
 """
 
 from __future__ import annotations
 
 import copy
 import hashlib
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, ValidationError
+from pydantic import Field
 
 from cmrt.canonical import canonical_json
 from sim.specbase import StrictModel, count
-
-if TYPE_CHECKING:
-    from sim.spec import TaskSpec
 
 #: Most paths one robust block may vary (a Latin hypercube over more says little with K <= 32).
 MAX_ROBUST_PATHS = 4
 #: Fewest and most variants per candidate (each one clip per candidate and generation).
 MIN_SAMPLES, MAX_SAMPLES = 2, 32
 #: Blocks whose numbers are not the scene: they shape the search (`cmrt`, `optimize`).
-_NOT_SCENE = ("optimize", "cmrt")
+NOT_SCENE = ("optimize", "cmrt")
 
 _PATH = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)+$"
 Range = Annotated[list[float], Field(min_length=2, max_length=2)]
@@ -108,45 +105,5 @@ def variant_document(document: dict[str, Any], values: dict[str, float]) -> dict
     return doc
 
 
-def check_robust(spec: TaskSpec) -> None:
-    """ValueError naming `optimize.robust...` and the rule unless every path is a number of
-    this spec's scene, every range lies within the field's bounds with lo < hi, and every
-    variant is a valid spec."""
-    from sim.spec import TaskSpec, format_error, numeric_fields  # the caller: TaskSpec's
-
-    robust = spec.optimize.robust
-    if robust is None:
-        return
-    fields = {f.name: f for f in numeric_fields(spec) if f.value is not None}
-    for path, (lo, hi) in robust.vary.items():
-        where = f"optimize.robust.vary.{path}"
-        if path.split(".")[0] in _NOT_SCENE:
-            raise ValueError(f"{where}: the {path.split('.')[0]} block is not part of the "
-                             "scene; vary numbers of the task, clip, controller or character")
-        f = fields.get(path)
-        if f is None:
-            raise ValueError(f"{where}: not a number this spec sets (a path such as "
-                             f"`cmrt family run --param` takes, e.g. task.mass)")
-        if f.integer:
-            raise ValueError(f"{where}: {path} is a whole number; only real numbers can vary "
-                             "over a range")
-        if not lo < hi:
-            raise ValueError(f"{where}: the range must be [lo, hi] with lo < hi, got "
-                             f"[{lo:g}, {hi:g}]")
-        if (f.lo is not None and lo < f.lo) or (f.hi is not None and hi > f.hi):
-            shown = f"{'-inf' if f.lo is None else f'{f.lo:g}'} to " \
-                    f"{'inf' if f.hi is None else f'{f.hi:g}'}"
-            raise ValueError(f"{where}: the range [{lo:g}, {hi:g}] must lie within the "
-                             f"field's own range, {shown}")
-    document = spec.model_dump(mode="json")
-    for i, values in enumerate(variant_values(robust)):
-        try:
-            TaskSpec.model_validate(variant_document(document, values))
-        except ValidationError as err:
-            shown = ", ".join(f"{p} = {v:g}" for p, v in values.items())
-            raise ValueError(f"optimize.robust: variant {i} ({shown}) is not a valid spec: "
-                             f"{format_error(err)}") from None
-
-
-__all__ = ["MAX_ROBUST_PATHS", "MAX_SAMPLES", "MIN_SAMPLES", "RobustConfig", "check_robust",
-           "levels", "set_dotted", "variant_document", "variant_values"]
+__all__ = ["MAX_ROBUST_PATHS", "MAX_SAMPLES", "MIN_SAMPLES", "NOT_SCENE", "RobustConfig", "levels",
+           "set_dotted", "variant_document", "variant_values"]

@@ -68,7 +68,7 @@ from sim.character_rules import HEIGHT_RANGE, MASS_RANGE
 from sim.controllers.config import DEFAULT_CONTROLLER, GAIN_NAMES
 from sim.controllers.registry import CONTROLLER_TYPES
 from sim.errors import CharacterError, SpecError
-from sim.robust import RobustConfig, check_robust
+from sim.robust import NOT_SCENE, RobustConfig, variant_document, variant_values
 from sim.specbase import Samples, StrictModel, count, quantity
 from sim.tasks import TASK_TYPES
 from sim.tasks.base import MAX_CLIP_SECONDS
@@ -361,7 +361,7 @@ class TaskSpec(_Strict):
                 raise ValueError(
                     f"{where}: must be below half the support length minus "
                     f"{MIN_COP_BOX_WIDTH} m ({room:.3f} m for this character), got {v:g}")
-        check_robust(self)  # last: the variants are checked against a valid spec
+        _check_robust(self)  # last: the variants are checked against a valid spec
         return self
 
     # ---- derived quantities -------------------------------------------------------------
@@ -503,6 +503,44 @@ def load_spec(path: str | Path) -> TaskSpec:
     except SpecReadError as err:
         raise SpecError(str(err)) from None
     return parse_spec(data, str(path))
+
+
+def _check_robust(spec: TaskSpec) -> None:
+    """ValueError naming `optimize.robust...` and the rule unless every path is a number of
+    this spec's scene, every range lies within the field's bounds with lo < hi, and every
+    variant is a valid spec."""
+    robust = spec.optimize.robust
+    if robust is None:
+        return
+    fields = {f.name: f for f in numeric_fields(spec) if f.value is not None}
+    for path, (lo, hi) in robust.vary.items():
+        where = f"optimize.robust.vary.{path}"
+        if path.split(".")[0] in NOT_SCENE:
+            raise ValueError(f"{where}: the {path.split('.')[0]} block is not part of the "
+                             "scene; vary numbers of the task, clip, controller or character")
+        f = fields.get(path)
+        if f is None:
+            raise ValueError(f"{where}: not a number this spec sets (a path such as "
+                             f"`cmrt family run --param` takes, e.g. task.mass)")
+        if f.integer:
+            raise ValueError(f"{where}: {path} is a whole number; only real numbers can vary "
+                             "over a range")
+        if not lo < hi:
+            raise ValueError(f"{where}: the range must be [lo, hi] with lo < hi, got "
+                             f"[{lo:g}, {hi:g}]")
+        if (f.lo is not None and lo < f.lo) or (f.hi is not None and hi > f.hi):
+            shown = f"{'-inf' if f.lo is None else f'{f.lo:g}'} to " \
+                    f"{'inf' if f.hi is None else f'{f.hi:g}'}"
+            raise ValueError(f"{where}: the range [{lo:g}, {hi:g}] must lie within the "
+                             f"field's own range, {shown}")
+    document = spec.model_dump(mode="json")
+    for i, values in enumerate(variant_values(robust)):
+        try:
+            TaskSpec.model_validate(variant_document(document, values))
+        except ValidationError as err:
+            shown = ", ".join(f"{p} = {v:g}" for p, v in values.items())
+            raise ValueError(f"optimize.robust: variant {i} ({shown}) is not a valid spec: "
+                             f"{format_error(err)}") from None
 
 
 # ---- the canonical form ----------------------------------------------------------------------

@@ -43,3 +43,22 @@ def test_the_issue_s_huge_job_is_refused_naming_the_field_and_the_ceiling(tmp_pa
     with pytest.raises(BudgetExceeded):
         check(_spec(popsize=8), tight)
     check(_spec(popsize=8, max_evaluations=375), tight)  # (375 + 7 + 2) x 2.6 = 998.4 s
+
+
+def test_a_robust_job_counts_k_clips_per_candidate_each_as_long_as_the_longest(tmp_path):
+    doc = _spec(popsize=8, max_evaluations=400).model_dump(mode="json")
+    doc["optimize"]["robust"] = {"vary": {"clip.duration": [0.3, 0.5]}, "samples": 3}
+    robust = parse_spec(doc)
+    b = budget(robust)
+    assert b.evaluations == (400 + 7 + 2) * 3  # candidates x variants
+    assert b.clip_seconds == pytest.approx(1.0 + 0.5 + 1.2, rel=1e-12)  # the longest variant
+    doc["optimize"]["max_evaluations"] = 10_000
+    settings = Settings(data_dir=tmp_path)
+    with pytest.raises(BudgetExceeded, match=r"3 variants per candidate.*at most (\d+)") as err:
+        check(parse_spec(doc), settings)
+    most = int(err.value.args[0].rsplit("at most ", 1)[1].split()[0])
+    doc["optimize"]["max_evaluations"] = most
+    assert check(parse_spec(doc), settings).sim_seconds <= settings.max_job_sim_seconds
+    doc["optimize"]["max_evaluations"] = most + 8
+    with pytest.raises(BudgetExceeded):
+        check(parse_spec(doc), settings)
