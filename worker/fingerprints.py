@@ -16,6 +16,7 @@ import contextlib
 import functools
 import json
 import logging
+import threading
 from typing import Any
 
 from celery import bootsteps
@@ -38,6 +39,28 @@ def process_fingerprint() -> str:
     from sim.fingerprint import numeric_fingerprint
 
     return numeric_fingerprint().digest
+
+
+_background = threading.Lock()
+_started = False
+
+
+def fingerprint_if_ready() -> str | None:
+    """This process's fingerprint when it has been computed, else None after starting its
+    computation in a background thread (once): a caller that must answer at once (`/health`)
+    never waits for the reference clip (in a fresh container its first run compiles the
+    simulator, tens of seconds)."""
+    from sim.fingerprint import numeric_fingerprint
+
+    if numeric_fingerprint.cache_info().currsize:
+        return numeric_fingerprint().digest
+    global _started
+    with _background:
+        if not _started:
+            _started = True
+            threading.Thread(target=numeric_fingerprint, name="cmrt-fingerprint",
+                             daemon=True).start()
+    return None
 
 
 def record(hostname: str) -> dict[str, Any]:

@@ -15,7 +15,7 @@ from service.deps import ServicesDep
 from service.errors import DATABASE_RETRY_AFTER_S
 from service.openapi import error_responses
 from worker.executors import CeleryExecutor
-from worker.fingerprints import live_fingerprints, process_fingerprint, redis_client
+from worker.fingerprints import fingerprint_if_ready, live_fingerprints, redis_client
 
 router = APIRouter(tags=["operations"])
 log = logging.getLogger("cmrt.service.health")
@@ -32,9 +32,11 @@ def _check(name: str, probe: Callable[[], Any]) -> str:
 
 
 def _fingerprints(svc: Any, broker_ok: bool) -> dict[str, str]:
-    """This process's numeric fingerprint ("api") and, with a reachable Redis broker, every
-    live Celery worker's by hostname (worker.fingerprints)."""
-    out = {"api": process_fingerprint()}
+    """This process's numeric fingerprint ("api", once computed: the first call starts it in
+    the background) and, with a reachable Redis broker, every live Celery worker's by hostname
+    (worker.fingerprints)."""
+    api = fingerprint_if_ready()
+    out = {"api": api} if api else {}
     client = redis_client(svc.settings.broker_url or "") if broker_ok else None
     if client is not None:
         try:
