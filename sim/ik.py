@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from sim.character import ROOT_DOF, Character
 from sim.dynamics import ModelArrays, body_point, forward_kinematics, point_jacobian
@@ -47,6 +48,26 @@ class Target:
     both: bool = False
 
 
+@njit(cache=True)
+def _cm_terms(p, o, path, mass, mtot, n):
+    """(2, n) Jacobian of the CM and the CM (2,): each body's mass-weighted term added in body
+    order, then divided by the total mass `mtot` (one compiled loop: the IK's costliest rows)."""
+    Jc = np.zeros((2, n))
+    c = np.zeros(2)
+    for b in range(mass.shape[0]):
+        J = point_jacobian(p[b], b, o, path, n)
+        m = mass[b]
+        for i in range(2):
+            for j in range(n):
+                Jc[i, j] += m * J[i, j]
+            c[i] += m * p[b, i]
+    for i in range(2):
+        for j in range(n):
+            Jc[i, j] /= mtot
+        c[i] /= mtot
+    return Jc, c
+
+
 def _rows(q: np.ndarray, a: ModelArrays, targets: list[Target]) -> tuple[np.ndarray, np.ndarray]:
     """(residual r_dest - r, Jacobian rows over every coordinate) of the targets at q."""
     n = q.shape[0]
@@ -67,13 +88,7 @@ def _rows(q: np.ndarray, a: ModelArrays, targets: list[Target]) -> tuple[np.ndar
             res.append(tg.value[0] - alpha[tg.body])
             rows.append(row)
         elif tg.kind == "cm":
-            Jc = np.zeros((2, n))
-            c = np.zeros(2)
-            for b in range(len(a.mass)):
-                Jc += a.mass[b] * point_jacobian(p[b], b, o, a.path, n)
-                c += a.mass[b] * p[b]
-            Jc /= mtot
-            c /= mtot
+            Jc, c = _cm_terms(p, o, a.path, a.mass, mtot, n)
             res.append(tg.value[0] - c[0])
             rows.append(Jc[0])
             if tg.both:
@@ -111,22 +126,56 @@ def solve_ik(q0: np.ndarray, arrays: ModelArrays, limits: np.ndarray, targets: l
         err = float(np.max(np.abs(res)))
         if err < tol or it == max_iterations:
             break
-        # A hinge at a limit that the step would push further out is held there and the step
-        # recomputed without it (otherwise the clamp undoes part of every step and the
-        # iteration stalls: a straight knee at its stop).
-        free = np.ones(len(cols), dtype=bool)
-        for _ in range(len(hinge_cols) + 1):
-            Jd = J[:, cols[free]]
-            step = np.zeros(len(cols))
-            step[free] = tmatvec(Jd, solve(matmul(Jd, Jd.T) + damping * np.eye(len(res)), res))
-            new = q[hinge_cols] + step[is_hinge]
-            out = ((new < lo) & (q[hinge_cols] <= lo + 1e-12)) | (
-                (new > hi) & (q[hinge_cols] >= hi - 1e-12))
-            blocked = np.zeros(len(cols), dtype=bool)
-            blocked[np.flatnonzero(is_hinge)[out]] = True
-            if not (blocked & free).any():
-                break
-            free &= ~blocked
-        q[cols] += step
-        q[hinge_cols] = np.clip(q[hinge_cols], lo, hi)
+        _ik_update(q, J, res, cols, is_hinge, lo, hi, damping)
     return IkResult(q, err, it)
+
+
+@njit(cache=True)
+def _ik_update(q, J, res, cols, is_hinge, lo, hi, damping):
+    """One damped least-squares step of `solve_ik`, applied to q in place: the coordinates
+    `cols` (hinges where `is_hinge`, bounded by lo, hi in their order) move by
+    J^T (J J^T + damping I)^-1 res over the free columns. A hinge at a limit that the step
+    would push further out is held there and the step recomputed without it (otherwise the
+    clamp undoes part of every step and the iteration stalls: a straight knee at its stop)."""
+    nc = cols.shape[0]
+    m = res.shape[0]
+    free = np.ones(nc, dtype=np.bool_)
+    step = np.zeros(nc)
+    for _ in range(int(is_hinge.sum()) + 1):
+        idx = np.flatnonzero(free)
+        Jd = np.empty((m, idx.shape[0]))
+        for i in range(m):
+            for j in range(idx.shape[0]):
+                Jd[i, j] = J[i, cols[idx[j]]]
+        A = matmul(Jd, Jd.T)
+        for i in range(m):
+            for j in range(m):
+                A[i, j] += damping if i == j else 0.0  # (as + damping * I: -0.0 becomes 0.0)
+        sub = tmatvec(Jd, solve(A, res))
+        step = np.zeros(nc)
+        for j in range(idx.shape[0]):
+            step[idx[j]] = sub[j]
+        stuck = False
+        h = 0
+        for j in range(nc):
+            if not is_hinge[j]:
+                continue
+            qj = q[cols[j]]
+            new = qj + step[j]
+            out = (new < lo[h] and qj <= lo[h] + 1e-12) or (new > hi[h] and qj >= hi[h] - 1e-12)
+            if out and free[j]:
+                stuck = True
+                free[j] = False
+            h += 1
+        if not stuck:
+            break
+    h = 0
+    for j in range(nc):
+        c = cols[j]
+        q[c] += step[j]
+        if is_hinge[j]:
+            if q[c] < lo[h]:
+                q[c] = lo[h]
+            elif q[c] > hi[h]:
+                q[c] = hi[h]
+            h += 1

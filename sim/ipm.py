@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from sim.dynamics import GRAVITY
 
@@ -85,25 +86,33 @@ def pendulum_path(c: np.ndarray, cd: np.ndarray, pivot: float, duration: float,
     th = math.atan2(dx, dy)
     w = (float(cd[0]) * math.cos(th) - float(cd[1]) * math.sin(th)) / lg
     n = max(int(math.ceil(duration / IPM_DT)), 1)
+    thetas, rates = _integrate(th, w, GRAVITY / lg, push / lg, IPM_DT, n)
+    return PendulumPath(t0, pivot, lg, thetas, rates, push)
+
+
+@njit(cache=True)
+def _pendulum_accel(x, k, kp):
+    """theta'' at lean x: k sin x (+ kp cos x under a push)."""
+    return k * math.sin(x) + kp * math.cos(x) if kp != 0.0 else k * math.sin(x)
+
+
+@njit(cache=True)
+def _integrate(th, w, k, kp, h, n):
+    """n RK4 steps of h s of theta'' = k sin theta + kp cos theta from (th, w): the leans and
+    lean rates (n + 1,) each (compiled: a re-plan integrates the rest of the swing at every
+    swing solve)."""
     thetas = np.empty(n + 1)
     rates = np.empty(n + 1)
     thetas[0], rates[0] = th, w
-    k = GRAVITY / lg
-    kp = push / lg
-    h = IPM_DT
-
-    def acc(x: float) -> float:
-        return k * math.sin(x) + kp * math.cos(x) if kp else k * math.sin(x)
-
     for i in range(n):
-        a1 = acc(th)
-        a2 = acc(th + 0.5 * h * w)
-        a3 = acc(th + 0.5 * h * (w + 0.5 * h * a1))
-        a4 = acc(th + h * (w + 0.5 * h * a2))
+        a1 = _pendulum_accel(th, k, kp)
+        a2 = _pendulum_accel(th + 0.5 * h * w, k, kp)
+        a3 = _pendulum_accel(th + 0.5 * h * (w + 0.5 * h * a1), k, kp)
+        a4 = _pendulum_accel(th + h * (w + 0.5 * h * a2), k, kp)
         th, w = (th + h * (w + h * (a1 + a2 + a3) / 6.0),
                  w + h * (a1 + 2.0 * a2 + 2.0 * a3 + a4) / 6.0)
         thetas[i + 1], rates[i + 1] = th, w
-    return PendulumPath(t0, pivot, lg, thetas, rates, push)
+    return thetas, rates
 
 
 @dataclass(frozen=True)
