@@ -235,6 +235,27 @@ def test_ik_reaches_a_planned_foot_position_within_1_cm(standing):
     assert np.all(hinges >= lim[:, 0] - 1e-9) and np.all(hinges <= lim[:, 1] + 1e-9)
 
 
+def test_ik_holds_a_hinge_at_its_stop_when_the_target_is_out_of_reach(standing):
+    """A swing foot aimed 3 m away straightens its leg: a hinge ends at its stop (held there,
+    the step recomputed without it), every hinge within its limits, and the iteration stops at
+    its cap without a NaN."""
+    a, ch = standing.arrays, standing.character
+    q = standing.q0
+    alpha, p, _o = forward_kinematics(q, a.parent, a.a_par, a.a_chi)
+    f0, f1 = int(a.feet[0]), int(a.feet[1])
+    s0 = body_point(alpha, p, f0, a.sole_local[0])
+    targets = [Target("point", (float(s0[0]), float(s0[1])), f0, tuple(a.sole_local[0])),
+               Target("angle", (float(alpha[f0]),), f0),
+               Target("point", (float(s0[0]) + 3.0, 0.0), f1, tuple(a.sole_local[1]))]
+    dofs = [ROOT_DOF + j for f in ch.feet for j in leg_hinges(ch, int(f))]
+    res = solve_ik(q, a, ch.limits, targets, dofs, max_iterations=20)
+    hinges = res.q[ROOT_DOF:]
+    lim = ch.limits
+    assert np.all(np.isfinite(res.q)) and res.iterations == 20 and res.residual > 1.0
+    assert np.all(hinges >= lim[:, 0]) and np.all(hinges <= lim[:, 1])
+    assert np.any((hinges == lim[:, 0]) | (hinges == lim[:, 1]))
+
+
 # ---- the step controller -------------------------------------------------------------------
 def test_spec_switches_stepping_on():
     sim = Rollout(parse_spec(_spec(True)))
