@@ -33,7 +33,9 @@ def _number(text: str) -> float:
 def command_line(args: argparse.Namespace) -> str:
     """The command as given but its --out (the written spec's header names it, so that the
     same command gives the same file wherever it writes it)."""
-    parts = ["cmrt", "motion", "import", args.clip, "--character", args.character]
+    parts = ["cmrt", "motion", "import", args.clip]
+    if args.character is not None:
+        parts += ["--character", args.character]
     for flag, v in (("--map", args.map), ("--start", args.start), ("--end", args.end),
                     ("--rate", args.rate), ("--name", args.name),
                     ("--cutoff", None if args.cutoff == 6.0 else args.cutoff),
@@ -79,8 +81,9 @@ def add_parsers(sub: Any) -> None:
         "onto the character's hinges, resample it and keep it inside the joint limits; write "
         "a task spec that cmrt simulate and cmrt optimize take as it is (docs/motion.md).")
     i.add_argument("clip", metavar="CLIP.bvh")
-    i.add_argument("--character", default="humanoid",
-                   help="a shipped character's name (default humanoid) or a character file "
+    i.add_argument("--character",
+                   help="a shipped character's name (default: the package's default "
+                        "character) or a character file "
                         "(.yaml/.json, docs/characters.md), named in the spec by its path")
     i.add_argument("--map", metavar="MAP.yaml",
                    help="which clip bone each character segment follows (default: the "

@@ -43,7 +43,7 @@ import numpy as np
 import yaml
 
 from sim.bvh import BvhClip, read_bvh
-from sim.character import DATA_DIR, Character, load_character
+from sim.character import DATA_DIR, DEFAULT_CHARACTER, Character, load_character
 from sim.errors import SimError
 from sim.export import bvh_names, end_site
 from sim.tasks.base import MAX_CLIP_SECONDS, MAX_TARGET_DEGREES
@@ -548,10 +548,12 @@ class ImportOptions:
     name: str | None = None
 
 
-def import_motion(path: str | Path, character: str = "humanoid",
+def import_motion(path: str | Path, character: str | None = None,
                   map_path: str | Path | None = None,
                   options: ImportOptions = ImportOptions()) -> MotionImport:
-    """A BVH clip as a `motion` task spec for `character` (module docstring)."""
+    """A BVH clip as a `motion` task spec for `character` (a shipped name or a character file;
+    None: the package's default character) (module docstring)."""
+    character = DEFAULT_CHARACTER if character is None else character
     o = options
     if o.legs not in ("average", "each"):
         raise MotionImportError(f"--legs: must be average or each, got {o.legs!r}")
