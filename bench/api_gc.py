@@ -61,7 +61,6 @@ def main() -> None:
     ap.add_argument("--requests", type=int, default=3000)
     ap.add_argument("--db", type=Path, default=None)
     args = ap.parse_args()
-    sys.path.append(str(ROOT))
     from bench.library_scale import _entries, _fill
 
     db = args.db or Path(tempfile.mkdtemp(prefix="cmrt-apigc-")) / "cmrt.db"

@@ -31,7 +31,6 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -109,14 +108,12 @@ def over_loopback(url: str, n: int, http_impl: str, loop: str) -> dict[str, floa
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    # this file's folder on the path, not the checkout's: `service` is the interpreter's own
-    # (another checkout's .venv/bin/python measures that checkout)
-    code = ("import sys, uvicorn; sys.path.insert(0, sys.argv[1]); "
-            "from http_floor import _app; "
-            "uvicorn.run(_app(sys.argv[2]), host='127.0.0.1', port=int(sys.argv[3]), "
-            "http=sys.argv[4], loop=sys.argv[5], log_level='warning')")
-    proc = subprocess.Popen([sys.executable, "-c", code, str(Path(__file__).parent), url,
-                             str(port), http_impl, loop],
+    # the product as this interpreter has it installed (another checkout's .venv/bin/python
+    # measures that checkout)
+    code = ("import sys, uvicorn; from bench.http_floor import _app; "
+            "uvicorn.run(_app(sys.argv[1]), host='127.0.0.1', port=int(sys.argv[2]), "
+            "http=sys.argv[3], loop=sys.argv[4], log_level='warning')")
+    proc = subprocess.Popen([sys.executable, "-c", code, url, str(port), http_impl, loop],
                             stdout=subprocess.DEVNULL, cwd=tempfile.gettempdir())
     try:
         deadline = time.monotonic() + 60

@@ -16,16 +16,13 @@ from __future__ import annotations
 
 import argparse
 import random
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.append(str(Path(__file__).resolve().parents[1]))  # after PYTHONPATH: A/B runs
-
-from application import answers  # noqa: E402
-from bench.library_scale import MASS_HI, MASS_LO, TOLERANCE, _entries, _fill  # noqa: E402
-from store import open_repository  # noqa: E402
+from application import answers
+from bench.library_scale import MASS_HI, MASS_LO, TOLERANCE, _entries, _fill
+from store import open_repository
 
 
 def main() -> None:
