@@ -32,25 +32,27 @@ import math
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
+import numpy as np
+
 from application import jobs
-from application.admission import default_popsize
+from application.admission import Budget, default_popsize
 from application.errors import InvalidRequest
 from application.library import (
     MAX_MEMBERS,
     SWITCH_DISTANCE,
     LibraryCmrt,
+    interpolated_at,
     nearer,
-    neighbours_answer,
     params_distance,
-    spline_of,
 )
 from cmrt.canonical import text_hash
 from cmrt.defaults import DEFAULT_SEED
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
+from optim.interpolate import InterpolatedCmrt
 from optim.spline import CmrtSpline, encode, sample_curve
 from sim.errors import SpecError
 from sim.spec import CanonicalSpec, TaskSpec, parse_canonical, parse_spec
@@ -79,6 +81,101 @@ Simulate = Callable[[dict[str, Any], list[float]], dict[str, Any]]
 
 class AnswerError(InvalidRequest):
     """A query the library cannot answer; the message starts with the field it is about."""
+
+
+@dataclass(frozen=True)
+class LibraryQuery:
+    """Ask the library for its answer at task parameters: `parameters` (library keys such as
+    `mass`, or spec paths such as `task.mass`) name the point, `along` the interpolated one
+    when there are several (the others must match exactly); outside the stored range only
+    with `extrapolate`. `where` starts the messages about the parameters (`parameters: ` in a
+    request body). InvalidRequest when the parameters cannot name one point."""
+
+    family: str
+    parameters: Mapping[str, float]
+    along: str | None = None
+    extrapolate: bool = False
+    where: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.parameters:
+            raise InvalidRequest(f"{self.where}a task parameter to interpolate at is required, "
+                                 "e.g. mass=60")
+        if self.along is None and len(self.parameters) > 1:
+            raise InvalidRequest("along: required when several task parameters are given")
+        if self.along is not None and self.along not in self.parameters:
+            raise InvalidRequest(f"along: {self.along!r} is not among the given parameters")
+
+
+@dataclass(frozen=True)
+class Refine:
+    """Refine the library's answer at `query` in the family's PCA basis (the newest, or
+    `basis_id`) under `max_evaluations`."""
+
+    query: LibraryQuery
+    basis_id: str | None = None
+    max_evaluations: int = REFINE_MAX_EVALUATIONS
+    seed: int = DEFAULT_SEED
+
+
+@dataclass(frozen=True)
+class Answer:
+    """What the library serves at a task parameter, and what it is (the module docstring):
+    the served CMRT (`spline`, its curve fields read from it) with its provenance, the
+    neighbours' check and, once simulated, its outcome. `interpolation` is the neighbours'
+    interpolation, whichever CMRT is served."""
+
+    family: str
+    key: str
+    value: float
+    note: str | None
+    source: str
+    members: list[str]
+    #: {id, <key>: value, objective, task_parameters} of each neighbour, lower first.
+    neighbours: list[dict[str, Any]]
+    weight: float
+    exact: bool
+    extrapolated: bool
+    switch: dict[str, Any] | None
+    predicted_objective: float
+    robust: dict[str, Any] | None
+    spline: CmrtSpline
+    interpolation: CmrtSpline
+    message: str
+    verified: bool = False
+    verdict: str = "unverified"
+    outcome: dict[str, Any] | None = None
+    tried: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def length(self) -> float:
+        return float(self.spline.length)
+
+    @property
+    def knot_times(self) -> list[float]:
+        return [float(v) for v in self.spline.knot_times]
+
+    @property
+    def values(self) -> list[float]:
+        return [float(v) for v in self.spline.values]
+
+    @property
+    def vertical_values(self) -> list[float] | None:
+        vy = self.spline.vertical_values
+        return None if vy is None else [float(v) for v in vy]
+
+    @property
+    def curve(self) -> dict[str, list[float]]:
+        return sample_curve(self.spline)
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """A submitted refinement: its job, the budget admitted and the answer it started from."""
+
+    job: JobRecord
+    budget: Budget
+    answer: Answer
 
 
 @dataclass(frozen=True)
@@ -111,21 +208,42 @@ def library_parameter(repo: Repository, family: str, name: str) -> tuple[str, st
     return key, f"{name} is the library parameter {key!r}"
 
 
-def serve(
-    repo: Repository,
-    family: str,
-    key: str,
-    value: float,
-    *,
-    filters: Mapping[str, float] | None = None,
-    extrapolate: bool = False,
-    simulate: Simulate | None = None,
-) -> dict[str, Any]:
-    """The library's answer at `key` = `value` (module docstring); simulated and checked
-    when `simulate` is given. InterpolationError when the library cannot interpolate there
-    (range, family, parameter); AnswerError for a spec the value makes invalid."""
-    return _serve(repo, family, key, value, filters=filters, extrapolate=extrapolate,
-                  simulate=simulate)[0]
+def serve(repo: Repository, query: LibraryQuery, simulate: Simulate | None = None
+          ) -> Answer:
+    """The library's answer to `query` (module docstring); simulated and checked when
+    `simulate` is given. AnswerError when the library cannot answer there (range, family,
+    parameter, a spec the value makes invalid)."""
+    return _answered(repo, query, simulate)[0]
+
+
+def _answered(repo: Repository, q: LibraryQuery, simulate: Simulate | None
+              ) -> tuple[Answer, list[CmrtRecord], dict[str, float]]:
+    """`serve`'s answer, the neighbouring library CMRTs it read and the query's other
+    (matched) parameters."""
+    along = q.along or next(iter(q.parameters))
+    notes, named = [], {}
+    for name, v in q.parameters.items():
+        key = name
+        if "." in name:  # a spec path (task.mass): the library names it by its key
+            try:
+                key, note = library_parameter(repo, q.family, name)
+            except AnswerError as err:
+                raise AnswerError(f"{q.where}{err}") from None
+            if note:
+                notes.append(note)
+        if key in named:
+            raise AnswerError(f"{q.where}{name}: given twice ({key})")
+        named[key] = v
+        if name == along:
+            along = key
+    value = named.pop(along)
+    try:
+        answer, recs = _serve(repo, q.family, along, value, filters=named,
+                              extrapolate=q.extrapolate, simulate=simulate,
+                              note="; ".join(notes) or None)
+    except InterpolationError as err:
+        raise AnswerError(str(err)) from None
+    return answer, recs, named
 
 
 def _serve(
@@ -134,49 +252,45 @@ def _serve(
     key: str,
     value: float,
     *,
-    filters: Mapping[str, float] | None,
+    filters: Mapping[str, float],
     extrapolate: bool,
     simulate: Simulate | None,
-) -> tuple[dict[str, Any], list[CmrtRecord]]:
-    """`serve`'s answer and the neighbouring library CMRTs it read."""
+    note: str | None,
+) -> tuple[Answer, list[CmrtRecord]]:
+    """The answer at `key` = `value` and the neighbouring library CMRTs it read."""
     cover = robust_cover(repo, family, key, value, filters)
     try:
-        base, recs = neighbours_answer(repo, family, key, value, filters=filters,
-                                       extrapolate=extrapolate)
+        got, recs = interpolated_at(repo, family, key, value, filters=filters,
+                                    extrapolate=extrapolate)
     except InterpolationError:
         if cover is None:
             raise
-        base, recs = _robust_base(family, key, value, cover[0]), [cover[0]]
-    switch = _switch(recs, key) if not base["exact"] and len(recs) == 2 else None
-    interp = _answer_spline(base)
-    near = nearer(recs, key, value)
-    primary, why = _primary(repo, base, recs, key, value, cover, switch, interp)
-    out = {k: v for k, v in base.items() if k != "curve"}
-    out["interpolation"] = {k: base[k] for k in ("length", "knot_times", "values",
-                                                 "vertical_values")}
-    out.update(
-        predicted_objective=_predicted(base, recs),
-        switch=switch,
-        verified=False,
-        verdict="unverified",
-        outcome=None,
-        tried=[],
+        got, recs = _robust_only(cover[0], key, value), [cover[0]]
+    switch = _switch(recs, key) if not got.exact and len(recs) == 2 else None
+    interp = got.spline()
+    primary, why = _primary(repo, got, recs, key, value, cover, switch, interp)
+    answer = Answer(
+        family=family, key=key, value=value, note=note, source=primary.source,
+        members=primary.ids,
+        neighbours=[{"id": r.id, key: v, "objective": r.objective,
+                     "task_parameters": r.task_parameters}
+                    for r, v in zip(recs, (got.lower_value, got.upper_value), strict=False)],
+        weight=got.weight, exact=got.exact, extrapolated=got.extrapolated, switch=switch,
+        predicted_objective=_predicted(got, recs),
         robust=None if cover is None else {"id": cover[0].id, **cover[1]},
-    )
-    # the interpolation's curve is already sampled: not again on the plain path
-    _set_candidate(out, primary, base["curve"] if primary.spline is interp else None)
+        spline=primary.spline, interpolation=interp,
+        message=why + "; not simulated (verify=true simulates it once)")
     if simulate is None:
-        out["message"] = why + "; not simulated (verify=true simulates it once)"
-        return out, recs
-    spec = _spec_at(near, key, value, filters)
+        return answer, recs
+    spec = _spec_at(nearer(recs, key, value), key, value, filters)
     cands = [primary]
     tried = [_verify(repo, family, spec, primary, simulate)]
-    if not _good(tried[0], out["predicted_objective"]):
+    if not _good(tried[0], answer.predicted_objective):
         # the neighbours as they are; across a switch also their average, which is never
         # served unsimulated there but may, simulated, be the best the library has
         others = [_Candidate("member", [r], _member_spline(r))
                   for r in sorted(recs, key=lambda r: abs(r.task_parameters[key] - value))]
-        if primary.source != "interpolated" and not base["exact"] and len(recs) == 2:
+        if primary.source != "interpolated" and not got.exact and len(recs) == 2:
             others.append(_Candidate("interpolated", recs, interp))
         for c in others:
             if c.source == primary.source and c.ids == primary.ids:
@@ -184,35 +298,22 @@ def _serve(
             cands.append(c)
             tried.append(_verify(repo, family, spec, c, simulate))
     i = min(range(len(tried)), key=lambda j: _rank(tried[j]))
-    best = tried[i]
-    _set_candidate(out, cands[i], base["curve"] if cands[i].spline is interp else None)
-    out.update(verified=True, outcome=best["outcome"], tried=tried,
-               verdict=_verdict(best, out["predicted_objective"]))
-    out["message"] = _message(why, out, best, tried, key, value)
-    return out, recs
+    best, verdict = tried[i], _verdict(tried[i], answer.predicted_objective)
+    return replace(answer, source=cands[i].source, members=cands[i].ids,
+                   spline=cands[i].spline, verified=True, outcome=best["outcome"],
+                   tried=tried, verdict=verdict,
+                   message=_message(why, verdict, answer.predicted_objective, best, tried,
+                                    key, value)), recs
 
 
-def refine_job(
-    repo: Repository,
-    settings: Settings,
-    family: str,
-    key: str,
-    value: float,
-    *,
-    filters: Mapping[str, float] | None = None,
-    basis_id: str | None = None,
-    max_evaluations: int = REFINE_MAX_EVALUATIONS,
-    seed: int = DEFAULT_SEED,
-    extrapolate: bool = False,
-) -> tuple[JobRecord, Any, dict[str, Any]]:
-    """Submit a refinement at `key` = `value`: a job searching the family's PCA basis (the
-    newest, or `basis_id`), started at the best answer the library has there (a verified one
-    when the library kept one), under `max_evaluations`. Its result joins the library as a
-    member. Returns the job, its admitted budget and the answer it started from. AnswerError
-    naming `basis` when the family has none; InterpolationError as `serve`."""
-    answer, recs = _serve(repo, family, key, value, filters=filters, extrapolate=extrapolate,
-                          simulate=None)
-    if basis_id is None:
+def refine(repo: Repository, settings: Settings, cmd: Refine) -> Refinement:
+    """Submit a refinement (`Refine`): a job searching the family's PCA basis, started at the
+    best answer the library has there (a verified one when the library kept one), under its
+    evaluations. Its result joins the library as a member. AnswerError naming `basis` when
+    the family has none, and as `serve`; the job's refusals as `jobs.submit_job`."""
+    answer, recs, filters = _answered(repo, cmd.query, None)
+    family, key, value = answer.family, answer.key, answer.value
+    if cmd.basis_id is None:
         bases, _ = repo.list_bases(family, limit=1)
         if not bases:
             raise AnswerError(
@@ -222,22 +323,22 @@ def refine_job(
         basis = bases[0]
     else:
         try:
-            basis = repo.get_basis(basis_id)
+            basis = repo.get_basis(cmd.basis_id)
         except NotFound:
-            raise AnswerError(f"basis: no basis {basis_id!r}") from None
+            raise AnswerError(f"basis: no basis {cmd.basis_id!r}") from None
         if basis.family != family:
-            raise AnswerError(f"basis: {basis_id!r} is not a basis of family {family!r}")
+            raise AnswerError(f"basis: {cmd.basis_id!r} is not a basis of family {family!r}")
     spec = _spec_at(nearer(recs, key, value), key, value, filters)
-    served = _Candidate(answer["source"], [r for r in recs if r.id in answer["members"]],
-                        _answer_spline(answer))
+    served = _Candidate(answer.source, [r for r in recs if r.id in answer.members],
+                        answer.spline)
     cands = [served] + [_Candidate("member", [r], _member_spline(r)) for r in recs]
-    if not answer["exact"] and len(recs) == 2:
-        cands.append(_Candidate("interpolated", recs, _answer_spline(answer["interpolation"])))
+    if not answer.exact and len(recs) == 2:
+        cands.append(_Candidate("interpolated", recs, answer.interpolation))
     start_from = _best_cached(repo, spec, cands) or served
     # Whole generations within the budget: CMA-ES stops between generations, so a cap that is
     # not a multiple of the population would be passed by up to one generation.
     popsize = spec.spec.optimize.popsize or default_popsize(basis.k)
-    cap = min(max_evaluations, spec.spec.optimize.max_evaluations)
+    cap = min(cmd.max_evaluations, spec.spec.optimize.max_evaluations)
     cap = max(popsize, cap // popsize * popsize)
     typed = spec.spec.model_copy(update={"optimize": spec.spec.optimize.model_copy(update={
         "threshold": None, "min_evaluations": 0, "max_evaluations": cap,
@@ -250,9 +351,9 @@ def refine_job(
                  f"{start_from.source} answer of " + ", ".join(start_from.ids)),
         "x0": x0, "sigma0": REFINE_SIGMA0, "cmrts": start_from.ids,
     }
-    job, budget = jobs.submit_job(repo, settings, canonical, seed=seed, basis_id=basis.id,
+    job, budget = jobs.submit_job(repo, settings, canonical, seed=cmd.seed, basis_id=basis.id,
                                   start=start)
-    return job, budget, answer
+    return Refinement(job, budget, answer)
 
 
 # ---- the pieces ---------------------------------------------------------------------------
@@ -300,28 +401,23 @@ def _parameter_paths(rec: CmrtRecord) -> dict[str, str]:
     return got
 
 
-def _robust_base(family: str, key: str, value: float, rec: CmrtRecord) -> dict[str, Any]:
-    """The answer's base fields when a robust CMRT alone covers the value (no two members
-    bracket it): the robust CMRT as the one neighbour."""
-    s = _member_spline(rec)
-    return {"family": family, "key": key, "value": value, "weight": 0.0, "exact": False,
-            "extrapolated": False,
-            "neighbours": [{"id": rec.id, key: rec.task_parameters[key],
-                            "objective": rec.objective, "task_parameters": rec.task_parameters}],
-            "length": float(s.length), "knot_times": [float(v) for v in s.knot_times],
-            "values": [float(v) for v in s.values],
-            "vertical_values": None if s.vertical_values is None
-            else [float(v) for v in s.vertical_values],
-            "curve": sample_curve(s)}
+def _robust_only(rec: CmrtRecord, key: str, value: float) -> InterpolatedCmrt:
+    """The robust CMRT as the one neighbour when it alone covers the value (no two members
+    bracket it)."""
+    m, v = LibraryCmrt.of(rec), rec.task_parameters[key]
+    vy = None if m.vertical_values is None else np.asarray(m.vertical_values)
+    return InterpolatedCmrt(key, value, m.length, np.asarray(m.knot_times), np.asarray(m.values),
+                            vy, rec.id, rec.id, v, v, weight=0.0, extrapolated=False,
+                            exact=False)
 
 
-def _primary(repo: Repository, base: dict[str, Any], recs: list[CmrtRecord], key: str,
+def _primary(repo: Repository, got: InterpolatedCmrt, recs: list[CmrtRecord], key: str,
              value: float, cover: tuple[CmrtRecord, dict[str, Any]] | None,
              switch: dict[str, Any] | None, interp: CmrtSpline) -> tuple[_Candidate, str]:
     """The answer served first, and why: the member optimised at the value, a robust CMRT
     covering it, the nearer member across a switch, or the neighbours' interpolation."""
     near = nearer(recs, key, value)
-    if base["exact"]:
+    if got.exact:
         primary = _Candidate(_member_source(repo, recs[0]), [recs[0]], _member_spline(recs[0]))
         why = f"the library holds a CMRT optimised at {key} = {value:g}"
     elif cover is not None:
@@ -348,25 +444,6 @@ def _member_spline(rec: CmrtRecord) -> CmrtSpline:
     return LibraryCmrt.of(rec).spline()
 
 
-def _answer_spline(d: Mapping[str, Any]) -> CmrtSpline:
-    """The spline of an answer's curve fields."""
-    return spline_of(d["length"], d["knot_times"], d["values"], d["vertical_values"])
-
-
-def _set_candidate(out: dict[str, Any], c: _Candidate,
-                   curve: dict[str, list[float]] | None = None) -> None:
-    """The answer's curve fields and provenance from candidate `c` (`curve`: its sampled
-    curve when already at hand)."""
-    s = c.spline
-    out.update(
-        source=c.source, members=c.ids, length=float(s.length),
-        knot_times=[float(v) for v in s.knot_times], values=[float(v) for v in s.values],
-        vertical_values=None if s.vertical_values is None
-        else [float(v) for v in s.vertical_values],
-        curve=sample_curve(s) if curve is None else curve,
-    )
-
-
 def _member_source(repo: Repository, rec: CmrtRecord) -> str:
     """`refined` for a member a refinement job made, else `member`."""
     if rec.job_id is None:
@@ -389,11 +466,11 @@ def _switch(recs: list[CmrtRecord], key: str) -> dict[str, Any]:
             "between": [{"id": r.id, key: r.task_parameters[key]} for r in recs]}
 
 
-def _predicted(base: dict[str, Any], recs: list[CmrtRecord]) -> float:
+def _predicted(got: InterpolatedCmrt, recs: list[CmrtRecord]) -> float:
     """The neighbours' objectives interpolated at the value (the library's own prediction)."""
-    if base["exact"] or len(recs) < 2:
+    if got.exact or len(recs) < 2:
         return float(recs[0].objective)
-    w = float(base["weight"])
+    w = float(got.weight)
     return float((1.0 - w) * recs[0].objective + w * recs[1].objective)
 
 
@@ -496,10 +573,9 @@ def _best_cached(repo: Repository, spec: CanonicalSpec,
     return None if best is None else best[1]
 
 
-def _message(why: str, out: dict[str, Any], best: dict[str, Any], tried: list[dict[str, Any]],
-             key: str, value: float) -> str:
+def _message(why: str, verdict: str, predicted: float, best: dict[str, Any],
+             tried: list[dict[str, Any]], key: str, value: float) -> str:
     o = best["outcome"]
-    verdict = out["verdict"]
     if verdict == "good":
         head = (f"{why}; simulated at {key} = {value:g}: stands"
                 + ("" if o.get("task_success") is None else " and does its task")
@@ -512,7 +588,7 @@ def _message(why: str, out: dict[str, Any], best: dict[str, Any], tried: list[di
     if verdict == "weak":
         return (f"{why}; the best the library holds at {key} = {value:g} stands, objective "
                 f"{o['objective']:.4g}, but is more than {WEAK_MARGIN:.0%} above the library's "
-                f"prediction {out['predicted_objective']:.4g}: refine it (POST /refinements)")
+                f"prediction {predicted:.4g}: refine it (POST /refinements)")
     return (f"NOT A GOOD ANSWER: no CMRT the library holds stands at {key} = {value:g} "
             f"({'; '.join(t['source'] + ' ' + _what_went_wrong(t) for t in tried)}); "
             "refine it (POST /refinements) or optimise a job there")
@@ -530,5 +606,5 @@ def _what_went_wrong(t: dict[str, Any]) -> str:
 
 
 __all__ = ["REFINE_MAX_EVALUATIONS", "SOURCES", "SWITCH_DISTANCE", "WEAK_MARGIN", "AnswerError",
-           "InterpolationError", "Simulate", "library_parameter", "refine_job", "robust_cover",
-           "serve"]
+           "Answer", "LibraryQuery", "Refine", "Refinement", "Simulate",
+           "library_parameter", "refine", "robust_cover", "serve"]

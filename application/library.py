@@ -5,17 +5,17 @@ record without parsing its spec."""
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from application.errors import InvalidRequest
 from optim.errors import InterpolationError, ParamsError
 from optim.family.checks import parameter_distance
 from optim.family.spec import SWITCH_DISTANCE
-from optim.interpolate import bracket, interpolate
+from optim.interpolate import InterpolatedCmrt, bracket, interpolate
 from optim.spline import CmrtSpline, decode, encode, sample_curve
 from sim.spec import TaskSpec, parse_spec
 from store import CmrtEntry, CmrtKey, CmrtRecord, Repository
@@ -33,27 +33,6 @@ def nearer(recs: list[CmrtRecord], key: str, value: float) -> CmrtRecord:
 def params_distance(a: CmrtRecord, b: CmrtRecord) -> float:
     """RMS distance of two library CMRTs' spline parameters (box units); inf for two layouts."""
     return parameter_distance(a.params, b.params)
-
-
-#: Splines kept by their data: the library's answers build the same few members' and
-#: interpolations' splines at every query (a spline is immutable once built). As many as the
-#: store keeps records (store.library.RECORDS_KEPT): what a full collection walks stays small.
-SPLINES_KEPT = 1024
-
-
-def spline_of(length: float, knot_times: Sequence[float], values: Sequence[float],
-              vertical_values: Sequence[float] | None = None) -> CmrtSpline:
-    """`CmrtSpline(length, knot_times, values, vertical_values)`, shared by every caller
-    asking for the same numbers (ParamsError as the constructor raises it)."""
-    return _spline(float(length), tuple(map(float, knot_times)), tuple(map(float, values)),
-                   None if vertical_values is None else tuple(map(float, vertical_values)))
-
-
-@functools.lru_cache(maxsize=SPLINES_KEPT)
-def _spline(length: float, knot_times: tuple[float, ...], values: tuple[float, ...],
-            vertical_values: tuple[float, ...] | None) -> CmrtSpline:
-    return CmrtSpline(length, np.asarray(knot_times), np.asarray(values),
-                      None if vertical_values is None else np.asarray(vertical_values))
 
 
 @dataclass(frozen=True)
@@ -79,7 +58,7 @@ class LibraryCmrt:
 
     def spline(self) -> CmrtSpline:
         """The decoded spline."""
-        return spline_of(self.length, self.knot_times, self.values, self.vertical_values)
+        return CmrtSpline(self.length, self.knot_times, self.values, self.vertical_values)
 
     def task_parameters(self) -> dict[str, float]:
         return dict(self.parameters)
@@ -149,7 +128,25 @@ def library_members(repo: Repository, family: str) -> list[LibraryCmrt]:
     return [LibraryCmrt.of(r) for r in items if r.spec is not None]
 
 
-def neighbours_answer(
+def find_cmrts(repo: Repository, family: str | None, params: Mapping[str, float], *,
+               tolerance: float | None, limit: int, offset: int, curves: bool
+               ) -> tuple[list[Any], int]:
+    """A page of the library's CMRTs (`limit` from `offset`) and how many there are: those of
+    `family` (or all) newest first; with task parameters `params`, those at them (nearest
+    first within +-`tolerance`), as records when `curves` is asked for, else as keys."""
+    if not params:
+        return repo.list_cmrts(family, limit=limit, offset=offset)
+    if family is None:
+        raise InvalidRequest("family: required when querying by task parameters")
+    find = repo.find_cmrts if curves else repo.find_cmrt_keys  # keys: no JSON read
+    try:
+        found = find(family, params, tolerance=tolerance)
+    except ValueError as err:
+        raise InvalidRequest(str(err)) from None
+    return found[offset:offset + limit], len(found)
+
+
+def interpolated_at(
     repo: Repository,
     family: str,
     key: str,
@@ -158,7 +155,7 @@ def neighbours_answer(
     filters: Mapping[str, float] | None = None,
     extrapolate: bool = False,
     like: Callable[[CmrtKey], bool] | None = None,
-) -> tuple[dict[str, Any], list[CmrtRecord]]:
+) -> tuple[InterpolatedCmrt, list[CmrtRecord]]:
     """The CMRT of `family` interpolated at task parameter `key` = `value` among the library
     CMRTs (optionally only those whose other task parameters equal `filters`, and those `like`
     accepts), and the neighbouring library CMRTs it was built from (lower first; one when the
@@ -179,30 +176,7 @@ def neighbours_answer(
     by_id = {r.id: r for r in members}
     out = interpolate([LibraryCmrt.of(r) for r in members], value, key=key,
                       extrapolate=extrapolate)
-    spline = spline_of(out.length, out.knot_times, out.values, out.vertical_values)
-    d = out.to_dict()
-    neighbours, recs = [], []
-    for cid, v in ((out.lower, out.lower_value), (out.upper, out.upper_value)):
-        if neighbours and neighbours[0]["id"] == cid:
-            continue
-        r = by_id[cid]
-        recs.append(r)
-        neighbours.append({"id": cid, key: v, "objective": r.objective,
-                           "task_parameters": r.task_parameters})
-    return {
-        "family": family,
-        "key": key,
-        "value": value,
-        "weight": d["weight"],
-        "exact": d["exact"],
-        "extrapolated": d["extrapolated"],
-        "neighbours": neighbours,
-        "length": d["length"],
-        "knot_times": d["knot_times"],
-        "values": d["values"],
-        "vertical_values": d["vertical_values"],
-        "curve": sample_curve(spline),
-    }, recs
+    return out, [by_id[cid] for cid in dict.fromkeys((out.lower, out.upper))]
 
 
 #: CMA-ES step (box units) of a job started from the library: the continuation members' warm
@@ -228,17 +202,16 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
     for key in sorted(params):
         filters = {k: v for k, v in params.items() if k != key}
         try:
-            out, recs = neighbours_answer(repo, family, key, params[key], filters=filters,
-                                          like=like)
+            out, recs = interpolated_at(repo, family, key, params[key], filters=filters,
+                                        like=like)
         except InterpolationError:
             continue
-        vy = out["vertical_values"]
-        spline = spline_of(out["length"], out["knot_times"], out["values"], vy)
-        ids = [n["id"] for n in out["neighbours"]]
-        what = (f"library CMRT {ids[0]} ({key} = {params[key]:g})" if out["exact"] else
-                f"library: interpolated along {key} between " + " and ".join(
-                    f"{n[key]:g}" for n in out["neighbours"]) + f" (weight {out['weight']:.3f})")
-        if not out["exact"] and len(ids) == 2:  # across a strategy switch: never the average
+        spline = out.spline()
+        ids = [r.id for r in recs]
+        what = (f"library CMRT {ids[0]} ({key} = {params[key]:g})" if out.exact else
+                f"library: interpolated along {key} between {out.lower_value:g} and "
+                f"{out.upper_value:g} (weight {out.weight:.3f})")
+        if not out.exact and len(ids) == 2:  # across a strategy switch: never the average
             a, b = recs
             distance = params_distance(a, b)
             if distance > SWITCH_DISTANCE:
@@ -284,5 +257,5 @@ def _neighbour_ids(keys: list[CmrtKey], key: str, value: float) -> list[str]:
 
 
 __all__ = ["LIBRARY_WARM_SIGMA0", "MAX_MEMBERS", "SWITCH_DISTANCE", "LibraryCmrt",
-           "import_family", "library_entry", "library_members",
-           "library_start", "nearer", "neighbours_answer", "params_distance", "spline_of"]
+           "find_cmrts", "import_family", "library_entry", "library_members",
+           "interpolated_at", "library_start", "nearer", "params_distance"]

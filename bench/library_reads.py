@@ -42,7 +42,7 @@ def main() -> None:
     qs = [(f"domino_{rng.randrange(args.families):03d}", round(rng.uniform(MASS_LO, MASS_HI), 2))
           for _ in range(args.queries)]
     kinds = {
-        "answer": lambda f, m: answers.serve(repo, f, "mass", m),
+        "answer": lambda f, m: answers.serve(repo, answers.LibraryQuery(f, {"mass": m})),
         "find": lambda f, m: repo.find_cmrts(f, {"mass": m}, tolerance=TOLERANCE),
     }
     if hasattr(repo, "find_cmrt_keys"):

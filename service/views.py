@@ -6,6 +6,8 @@ from typing import Any
 
 from fastapi import Request
 
+from application.answers import Answer
+from service import schemas
 from service.deps import url_for
 from store import Repository
 
@@ -99,3 +101,18 @@ def basis_out(b: Any, request: Request) -> dict[str, Any]:
             "k": b.k, "mean": b.mean, "components": b.components,
             "variance_explained": b.variance_explained, "members": b.members, "box": b.box,
             "created_at": b.created_at}
+
+
+def answer_out(a: Answer, request: Request, offer: bool = True
+               ) -> schemas.LibraryAnswer:
+    """A library answer as served: its fields, each neighbour's URL and, with `offer` where
+    the answer is not a good one, how to ask for a refinement."""
+    out = schemas.LibraryAnswer.model_validate(a, from_attributes=True)
+    for n in out.neighbours:
+        n.url = url_for(request, "get_cmrt", cmrt_id=n.id)
+    if offer and a.verdict != "good" and not a.exact:  # a member optimised there: nothing to refine
+        out.refine = {"method": "POST", "url": url_for(request, "refine_cmrt"),
+                      "body": {"family": a.family, "parameters": {a.key: a.value}},
+                      "command": f"cmrt library refine --family {a.family} "
+                                 f"{a.key}={a.value:g} --wait"}
+    return out

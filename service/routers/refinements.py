@@ -8,15 +8,11 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
 from application import answers
-from application.admission import BudgetExceeded
-from application.bases import UnusableBasisError
-from optim.errors import InterpolationError
 from service import schemas
 from service.body import read_model
 from service.deps import ServicesDep, url_for
-from service.errors import HttpError
 from service.openapi import error_responses, json_body
-from service.routers.cmrts import query_point
+from service.views import answer_out
 
 router = APIRouter(prefix="/refinements", tags=["library"])
 
@@ -31,23 +27,15 @@ async def refine_cmrt(request: Request, svc: ServicesDep) -> JSONResponse:
     `basis`), started at the best answer the library has there, under a small budget; its
     result joins the library as a member (`source: refined`). 202 with the job."""
     req = await read_model(request, schemas.RefineRequest, svc.settings.max_body_bytes)
-    key, value, filters, note = query_point(svc.repo, req.family, dict(req.parameters),
-                                             req.along, "parameters: ")
-    try:
-        job, budget, answer = answers.refine_job(
-            svc.repo, svc.settings, req.family, key, value, filters=filters,
-            basis_id=req.basis, max_evaluations=req.max_evaluations, seed=req.seed,
-            extrapolate=req.extrapolate)
-    except (InterpolationError, answers.AnswerError, UnusableBasisError,
-            BudgetExceeded) as err:
-        raise HttpError(422, str(err)) from None
+    query = answers.LibraryQuery(req.family, req.parameters, req.along, req.extrapolate,
+                                 where="parameters: ")
+    got = answers.refine(svc.repo, svc.settings, answers.Refine(
+        query, basis_id=req.basis, max_evaluations=req.max_evaluations, seed=req.seed))
+    job = got.job
     if svc.run_drivers:
         svc.runner.submit(job.id)
-    answer["note"] = note
-    for n in answer["neighbours"]:
-        n["url"] = url_for(request, "get_cmrt", cmrt_id=n["id"])
     url = url_for(request, "get_job", job_id=job.id)
-    body = {"id": job.id, "url": url, "status": job.status, "budget": budget.to_dict(),
-            "basis_id": job.basis_id, "start": job.start, "answer": answer}
-    return JSONResponse(schemas.RefineAccepted.model_validate(body).model_dump(mode="json"),
-                        status_code=202, headers={"Location": url})
+    body = schemas.RefineAccepted(
+        id=job.id, url=url, status=job.status, budget=got.budget.to_dict(),
+        basis_id=job.basis_id, start=job.start, answer=answer_out(got.answer, request, offer=False))
+    return JSONResponse(body.model_dump(mode="json"), status_code=202, headers={"Location": url})

@@ -15,6 +15,11 @@ from service.simulations import run_clip
 from sim.spec import parse_spec
 from store import open_repository
 
+
+def Q(duration: float) -> answers.LibraryQuery:  # noqa: N802 - a query, named short
+    return answers.LibraryQuery("bend", {"duration": duration})
+
+
 ROOT = Path(__file__).resolve().parents[2]
 BASE = np.array([0.25, 0.5, 0.45, 0.55, 0.6, 0.5, 0.75, 0.5])
 
@@ -51,46 +56,46 @@ class Counting:
 
 
 def test_plain_answer_says_what_it_is(repo):
-    a = answers.serve(repo, "bend", "duration", 0.45)
-    assert a["source"] == "interpolated" and not a["exact"]
-    assert len(a["members"]) == 2 and [n["duration"] for n in a["neighbours"]] == [0.4, 0.5]
-    assert a["switch"]["detected"] is False and a["switch"]["distance"] < 0.15
-    assert a["verified"] is False and a["verdict"] == "unverified" and a["outcome"] is None
-    assert a["predicted_objective"] == pytest.approx(2.15)
-    assert "not simulated" in a["message"]
-    exact = answers.serve(repo, "bend", "duration", 0.4)
-    assert exact["source"] == "member" and exact["exact"] and exact["switch"] is None
+    a = answers.serve(repo, Q(0.45))
+    assert a.source == "interpolated" and not a.exact
+    assert len(a.members) == 2 and [n["duration"] for n in a.neighbours] == [0.4, 0.5]
+    assert a.switch["detected"] is False and a.switch["distance"] < 0.15
+    assert a.verified is False and a.verdict == "unverified" and a.outcome is None
+    assert a.predicted_objective == pytest.approx(2.15)
+    assert "not simulated" in a.message
+    exact = answers.serve(repo, Q(0.4))
+    assert exact.source == "member" and exact.exact and exact.switch is None
 
 
 def test_no_average_across_a_switch(repo):
-    a = answers.serve(repo, "bend", "duration", 0.58)
-    assert a["switch"]["detected"] is True
-    assert a["switch"]["distance"] > answers.SWITCH_DISTANCE
-    near = next(n for n in a["neighbours"] if n["duration"] == 0.5)
-    assert a["source"] == "member" and a["members"] == [near["id"]]
+    a = answers.serve(repo, Q(0.58))
+    assert a.switch["detected"] is True
+    assert a.switch["distance"] > answers.SWITCH_DISTANCE
+    near = next(n for n in a.neighbours if n["duration"] == 0.5)
+    assert a.source == "member" and a.members == [near["id"]]
     rec = repo.get_cmrt(near["id"])
-    assert a["knot_times"] == pytest.approx(rec.knots)
-    assert "strategy switch" in a["message"] and "not their average" in a["message"]
+    assert a.knot_times == pytest.approx(rec.knots)
+    assert "strategy switch" in a.message and "not their average" in a.message
 
 
 def test_verified_once_then_kept(repo):
     sim = Counting()
-    a = answers.serve(repo, "bend", "duration", 0.45, simulate=sim)
+    a = answers.serve(repo, Q(0.45), sim)
     first = sim.calls
-    assert first >= 1 and a["verified"] is True
-    o = a["outcome"]
+    assert first >= 1 and a.verified is True
+    o = a.outcome
     assert o["cached"] is False and o["status"] == "done"
     assert isinstance(o["objective"], float) and isinstance(o["fell"], bool)
     assert len(o["spec_hash"]) == 64
-    assert a["verdict"] in ("good", "weak", "falls", "fails_task")
-    if a["verdict"] != "good":  # never presented as good: says so, and tried the members
-        assert len(a["tried"]) == 3
-    b = answers.serve(repo, "bend", "duration", 0.45, simulate=sim)
+    assert a.verdict in ("good", "weak", "falls", "fails_task")
+    if a.verdict != "good":  # never presented as good: says so, and tried the members
+        assert len(a.tried) == 3
+    b = answers.serve(repo, Q(0.45), sim)
     assert sim.calls == first  # nothing simulated again
-    assert b["outcome"]["cached"] is True
-    assert {k: v for k, v in b["outcome"].items() if k != "cached"} == \
+    assert b.outcome["cached"] is True
+    assert {k: v for k, v in b.outcome.items() if k != "cached"} == \
         {k: v for k, v in o.items() if k != "cached"}
-    assert b["members"] == a["members"] and b["verdict"] == a["verdict"]
+    assert b.members == a.members and b.verdict == a.verdict
 
 
 def test_the_spec_of_the_query_is_the_member_spec_at_the_value(repo):
@@ -130,13 +135,13 @@ def test_every_task_parameter_can_be_set(task_doc, key, value, path):
 
 def test_across_a_switch_the_average_is_served_only_simulated(repo):
     sim = Counting()
-    a = answers.serve(repo, "bend", "duration", 0.58, simulate=sim)
-    assert a["switch"]["detected"] and a["verified"]
-    sources = [t["source"] for t in a["tried"]]
+    a = answers.serve(repo, Q(0.58), sim)
+    assert a.switch["detected"] and a.verified
+    sources = [t["source"] for t in a.tried]
     assert sources[0] == "member"  # the nearer member first, never the blind average
-    if a["verdict"] != "good" or len(sources) > 1:
+    if a.verdict != "good" or len(sources) > 1:
         assert sources == ["member", "member", "interpolated"]
-    assert a["source"] in sources and sim.calls == len(sources)
+    assert a.source in sources and sim.calls == len(sources)
 
 
 def test_a_job_never_starts_from_an_average_across_a_switch(repo):
@@ -153,3 +158,18 @@ def test_a_job_never_starts_from_an_average_across_a_switch(repo):
 
     member = LibraryCmrt.of(repo.get_cmrt(near)).spline()  # the member itself, for this clip
     assert across["x0"] == pytest.approx(encode(_spec(0.58), member))
+
+
+def test_a_query_names_one_point_or_is_refused(repo):
+    from application.errors import InvalidRequest
+
+    for params, along, msg in [({}, None, "a task parameter to interpolate at is required"),
+                               ({"duration": 0.4, "mass": 3.0}, None, "along: required"),
+                               ({"duration": 0.4}, "x", "along: 'x' is not among")]:
+        with pytest.raises(InvalidRequest, match=f"^{msg}"):
+            answers.LibraryQuery("bend", params, along)
+    with pytest.raises(answers.AnswerError, match="^parameters: clip.duration: given twice"):
+        answers.serve(repo, answers.LibraryQuery("bend", {"duration": 0.4, "clip.duration": 0.4},
+                                                 "duration", where="parameters: "))
+    with pytest.raises(answers.AnswerError, match="outside the sampled range"):
+        answers.serve(repo, Q(0.9))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from application.library import LibraryCmrt, neighbours_answer
+from application.library import LibraryCmrt, interpolated_at
 from optim.errors import InterpolationError
 from optim.interpolate import interpolate
 from optim.spline import decode, sample_curve
@@ -60,9 +60,9 @@ def _whole_family(repo, family: str, value: float, extrapolate: bool):
 def test_neighbours_give_the_whole_family_answer(repo, value, extrapolate):
     family = repo.cmrt_families()[0][0]
     want = _whole_family(repo, family, value, extrapolate)
-    got, _ = neighbours_answer(repo, family, "duration", value, extrapolate=extrapolate)
-    assert [n["id"] for n in got["neighbours"]] == list(dict.fromkeys(
-        [want["lower"], want["upper"]]))
+    interp, recs = interpolated_at(repo, family, "duration", value, extrapolate=extrapolate)
+    got = interp.to_dict()
+    assert [r.id for r in recs] == list(dict.fromkeys([want["lower"], want["upper"]]))
     for k in ("weight", "exact", "extrapolated", "length", "knot_times", "values"):
         assert got[k] == want[k], k
 
@@ -70,6 +70,6 @@ def test_neighbours_give_the_whole_family_answer(repo, value, extrapolate):
 def test_outside_the_range_is_refused_without_extrapolate(repo):
     family = repo.cmrt_families()[0][0]
     with pytest.raises(InterpolationError, match="outside the sampled range"):
-        neighbours_answer(repo, family, "duration", 0.7)
+        interpolated_at(repo, family, "duration", 0.7)
     with pytest.raises(InterpolationError, match="no library CMRTs"):
-        neighbours_answer(repo, family, "force", 1.0)
+        interpolated_at(repo, family, "force", 1.0)

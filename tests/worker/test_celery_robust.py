@@ -92,16 +92,16 @@ def test_a_robust_job_spreads_its_variants_and_equals_the_command_line(celery_wo
     assert cover is not None and cover[1] == {"path": "clip.duration", "range": [0.15, 0.25],
                                               "samples": 3, "aggregate": "mean"}
     assert answers.robust_cover(repo, "robust_bend", "duration", 0.3) is None
-    plain = answers.serve(repo, "robust_bend", "duration", 0.17)
-    assert plain["source"] == "robust" and plain["robust"]["id"] == cover[0].id
-    assert plain["members"] == [cover[0].id]
-    assert "was optimised for duration from 0.15 to 0.25 (3 variants" in plain["message"]
-    a = answers.serve(repo, "robust_bend", "duration", 0.17,
-                      simulate=lambda doc, params: run_clip(doc, params, False, False))
-    assert a["verified"] and a["tried"][0]["source"] == "robust"
-    assert a["tried"][0]["outcome"]["status"] == "done"
+    plain = answers.serve(repo, answers.LibraryQuery("robust_bend", {"duration": 0.17}))
+    assert plain.source == "robust" and plain.robust["id"] == cover[0].id
+    assert plain.members == [cover[0].id]
+    assert "was optimised for duration from 0.15 to 0.25 (3 variants" in plain.message
+    a = answers.serve(repo, answers.LibraryQuery("robust_bend", {"duration": 0.17}),
+                      lambda doc, params: run_clip(doc, params, False, False))
+    assert a.verified and a.tried[0]["source"] == "robust"
+    assert a.tried[0]["outcome"]["status"] == "done"
     # simulated at the query's value: the clip of duration 0.17, not the CMRT's own 0.2
     at = parse_canonical({**SPEC, "clip": {**SPEC["clip"], "duration": 0.17},
                           "optimize": {k: v for k, v in SPEC["optimize"].items()
                                        if k != "robust"}})
-    assert a["tried"][0]["outcome"]["spec_hash"] == at.hash
+    assert a.tried[0]["outcome"]["spec_hash"] == at.hash
