@@ -26,6 +26,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from application.errors import InvalidRequest
 from cmrt.settings import Settings
 from optim.family.plan import MEMBER, PROBES, REDUCED, plan_runs
 from optim.family.spec import MAIN, WARM, FamilySpec, member_spec
@@ -37,7 +38,7 @@ from sim.spec import TaskSpec
 FINAL_EVALUATIONS = 2
 
 
-class BudgetExceeded(ValueError):  # noqa: N818 - the name says what happened
+class BudgetExceeded(InvalidRequest):  # noqa: N818 - the name says what happened
     """A job's budget is above the server's ceiling; the message names the field and rule."""
 
 

@@ -37,6 +37,7 @@ from typing import Any
 
 from application import jobs
 from application.admission import default_popsize
+from application.errors import InvalidRequest
 from application.library import (
     MAX_MEMBERS,
     SWITCH_DISTANCE,
@@ -77,7 +78,7 @@ SOURCES = ("member", "interpolated", "refined", "robust")
 Simulate = Callable[[dict[str, Any], list[float]], dict[str, Any]]
 
 
-class AnswerError(ValueError):
+class AnswerError(InvalidRequest):
     """A query the library cannot answer; the message starts with the field it is about."""
 
 

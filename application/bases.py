@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from application.errors import InvalidRequest
 from application.library import library_members
 from optim.cmaes import MIN_DIMENSION
 from optim.errors import BasisError
@@ -15,7 +16,7 @@ from sim.spec import TaskSpec
 from store import NotFound, Repository
 
 
-class UnusableBasisError(ValueError):
+class UnusableBasisError(InvalidRequest):
     """A job cannot search in the basis it names; the message names the field (`basis`)."""
 
 

@@ -13,6 +13,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
+from application import errors
 from sim.character import Character, parse_character, shipped_characters
 from sim.errors import CharacterError
 from store import CharacterRecord, Conflict, NotFound, Repository
@@ -22,11 +23,11 @@ NAME_PATTERN = r"^[a-z0-9_]{1,64}$"
 _NAME = re.compile(NAME_PATTERN)
 
 
-class CharacterNameTakenError(Exception):
+class CharacterNameTakenError(errors.RequestConflict):
     """The name is a shipped character's, or a stored one's (HTTP 409)."""
 
 
-class InvalidCharacterError(ValueError):
+class InvalidCharacterError(errors.InvalidRequest):
     """The definition breaks a rule; the message names the field (HTTP 422)."""
 
 

@@ -26,6 +26,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 
+from application.errors import ApplicationError, Busy
 from sim.spec import error_location
 from store import NotFound
 
@@ -66,6 +67,12 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(HttpError)
     async def _http_error(_: Request, err: HttpError) -> JSONResponse:
         return JSONResponse({"detail": err.detail}, status_code=err.status, headers=err.headers)
+
+    @app.exception_handler(ApplicationError)
+    async def _refused(_: Request, err: ApplicationError) -> JSONResponse:
+        headers = {"Retry-After": str(err.retry_after)} if isinstance(err, Busy) else None
+        return JSONResponse({"detail": err.message}, status_code=err.http_status,
+                            headers=headers)
 
     @app.exception_handler(NotFound)
     async def _not_found(_: Request, err: NotFound) -> JSONResponse:
