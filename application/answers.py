@@ -49,6 +49,7 @@ from application.library import (
 )
 from cmrt.canonical import text_hash
 from cmrt.defaults import DEFAULT_SEED
+from cmrt.lru import LRU
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
 from optim.spline import CmrtSpline, encode, sample_curve
@@ -397,21 +398,19 @@ def _predicted(base: dict[str, Any], recs: list[CmrtRecord]) -> float:
 
 #: Query specs this process has built (library entries never change, so a member's id, the
 #: parameter and the value name one spec): a kept answer is served without parsing a spec.
-_SPECS_AT: OrderedDict[tuple[Any, ...], CanonicalSpec] = OrderedDict()
 #: How many query specs are kept (a few kB each).
 SPECS_AT_CACHED = 1024
-_SPECS_AT_LOCK = threading.Lock()
+_SPECS_AT: LRU[tuple[Any, ...], CanonicalSpec] = LRU(SPECS_AT_CACHED)
+_SPECS_AT_LOCK = threading.Lock()  # guards `_PATHS`
 
 
 def _spec_at(rec: CmrtRecord, key: str, value: float,
              filters: Mapping[str, float] | None) -> CanonicalSpec:
     """The spec of the query: member `rec`'s spec with `key` (and the filters) set."""
     cache_key = (rec.id, key, float(value), tuple(sorted((filters or {}).items())))
-    with _SPECS_AT_LOCK:  # the service answers on several threads
-        got = _SPECS_AT.get(cache_key)
-        if got is not None:
-            _SPECS_AT.move_to_end(cache_key)
-            return got
+    got = _SPECS_AT.get(cache_key)  # the service answers on several threads: LRU locks
+    if got is not None:
+        return got
     spec: TaskSpec = parse_spec(rec.spec, f"library CMRT {rec.id}")
     doc = spec.with_parameter(key, value)
     doc["optimize"].pop("robust", None)  # the query is one scene, not a robust CMRT's range
@@ -421,10 +420,7 @@ def _spec_at(rec: CmrtRecord, key: str, value: float,
         got = parse_canonical(doc, "spec")
     except SpecError as err:
         raise AnswerError(f"{key}: {value:g} makes the task invalid: {err}") from None
-    with _SPECS_AT_LOCK:
-        _SPECS_AT[cache_key] = got
-        if len(_SPECS_AT) > SPECS_AT_CACHED:
-            _SPECS_AT.popitem(last=False)
+    _SPECS_AT.put(cache_key, got)
     return got
 
 

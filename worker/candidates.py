@@ -32,7 +32,6 @@ from __future__ import annotations
 import logging
 import socket
 import time
-from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -40,6 +39,7 @@ import numpy as np
 from sqlalchemy.exc import DBAPIError, OperationalError
 
 from application.jobs import job_spec
+from cmrt.lru import LRU
 from optim.errors import EvaluationError
 from optim.executors import EvalOutcome, evaluate_one
 from optim.objective import SPECS
@@ -111,16 +111,12 @@ class JobSpecs:
 
     def __init__(self, factory: ObjectiveFactory | None = None, size: int = 1024) -> None:
         self.factory = factory
-        self.size = size
-        self._hashes: OrderedDict[str, str] = OrderedDict()
+        self._hashes: LRU[str, str] = LRU(size)  # thread-safe: the driver threads share one
 
     def get(self, repo: Repository, job_id: str) -> tuple[TaskSpec, Any]:
         """The job's (typed spec, objective)."""
         canonical = job_spec(repo, job_id, self._hashes.get(job_id))
-        self._hashes[job_id] = canonical.hash
-        self._hashes.move_to_end(job_id)
-        while len(self._hashes) > self.size:
-            self._hashes.popitem(last=False)
+        self._hashes.put(job_id, canonical.hash)
         return canonical.spec, SPECS.objective(canonical, self.factory)
 
 
