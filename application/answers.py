@@ -55,7 +55,7 @@ from optim.errors import InterpolationError
 from optim.spline import CmrtSpline, encode, sample_curve
 from sim.errors import SpecError
 from sim.spec import CanonicalSpec, TaskSpec, parse_canonical, parse_spec
-from store import CmrtRecord, JobRecord, NotFound, Repository
+from store import CmrtRecord, JobRecord, JobStart, NotFound, Repository
 
 #: A verified answer whose objective exceeds the library's prediction (the neighbours'
 #: objectives interpolated at the value) by more than this fraction is weak: the neighbouring
@@ -245,12 +245,10 @@ def refine_job(
         "window": REFINE_WINDOW, "improvement": REFINE_IMPROVEMENT})})
     canonical = parse_canonical(typed.model_dump(mode="json"), "spec")
     x0 = [float(v) for v in encode(canonical.spec, start_from.spline)]
-    start = {
-        "kind": "refine",
-        "from": (f"refinement in basis {basis.id} at {key} = {value:g}, started at the "
-                 f"{start_from.source} answer of " + ", ".join(start_from.ids)),
-        "x0": x0, "sigma0": REFINE_SIGMA0, "cmrts": start_from.ids,
-    }
+    start = JobStart(
+        (f"refinement in basis {basis.id} at {key} = {value:g}, started at the "
+         f"{start_from.source} answer of " + ", ".join(start_from.ids)),
+        tuple(x0), REFINE_SIGMA0, tuple(start_from.ids), kind="refine")
     job, budget = jobs.submit_job(repo, settings, canonical, seed=seed, basis_id=basis.id,
                                   start=start)
     return job, budget, answer
@@ -373,10 +371,10 @@ def _member_source(repo: Repository, rec: CmrtRecord) -> str:
     if rec.job_id is None:
         return "member"
     try:
-        start = repo.get_job(rec.job_id).start or {}
+        start = repo.get_job(rec.job_id).start
     except NotFound:
         return "member"
-    return "refined" if start.get("kind") == "refine" else "member"
+    return "refined" if start is not None and start.kind == "refine" else "member"
 
 
 def _switch(recs: list[CmrtRecord], key: str) -> dict[str, Any]:

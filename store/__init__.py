@@ -31,6 +31,7 @@ from store.records import (
     GenerationCounts,
     GenerationRecord,
     JobRecord,
+    JobStart,
     VerificationRecord,
 )
 from store.repository import Repository, SqlRepository
@@ -65,6 +66,7 @@ __all__ = [
     "GenerationRecord",
     "InvalidTransition",
     "JobRecord",
+    "JobStart",
     "NotFound",
     "Repository",
     "SqlRepository",

@@ -52,7 +52,7 @@ from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
 from sim.spec import canonical_spec
 from store import Repository
-from store.records import CANCELLED, FAILED, FAMILY_DONE
+from store.records import CANCELLED, FAILED, FAMILY_DONE, JobStart
 
 log = logging.getLogger(__name__)
 
@@ -220,8 +220,8 @@ class FamilyDriver:
         basis_id = None if st.basis is None else store_basis(
             self.repo, st.basis, fs.family,
             [f"{family_id}/{rid}" for rid in sorted(results) if rid != run.id])
-        start = None if st.x0 is None else {"from": st.start,
-                                            "x0": [float(v) for v in np.asarray(st.x0)]}
+        start = None if st.x0 is None else JobStart(st.start, tuple(
+            float(v) for v in np.asarray(st.x0)))
         canonical = SPECS.put(canonical_spec(st.spec))  # this process' drivers: no parse
         spec = canonical.spec
         job = self.repo.add_family_run(family_id, run.id, {

@@ -48,6 +48,7 @@ async def refine_cmrt(request: Request, svc: ServicesDep) -> JSONResponse:
         n["url"] = url_for(request, "get_cmrt", cmrt_id=n["id"])
     url = url_for(request, "get_job", job_id=job.id)
     body = {"id": job.id, "url": url, "status": job.status, "budget": budget.to_dict(),
-            "basis_id": job.basis_id, "start": job.start, "answer": answer}
+            "basis_id": job.basis_id, "start": job.start.to_json() if job.start else None,
+            "answer": answer}
     return JSONResponse(schemas.RefineAccepted.model_validate(body).model_dump(mode="json"),
                         status_code=202, headers={"Location": url})

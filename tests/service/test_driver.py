@@ -11,7 +11,7 @@ from synthetic import Sphere
 from optim.executors import EvalOutcome, SerialExecutor
 from sim.spec import parse_spec
 from store import NotFound
-from store.records import CANCELLED, FAILED, STOPPED
+from store.records import CANCELLED, FAILED, STOPPED, JobStart
 from worker.driver import FINAL_GENERATION, CancelFlags, JobDriver
 from worker.executors import LocalPoolExecutor
 
@@ -194,7 +194,7 @@ def test_job_result_equals_the_command_lines_search_from_the_same_start(repo, co
 
     spec = parse_spec(bend_spec())
     x0 = [min(1.0, v + 0.05) for v in flat_params(spec)]
-    start = {"from": "a test", "x0": x0}
+    start = JobStart("a test", tuple(x0))
     job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                           family=spec.family_name, task=spec.task_type, seed=3, start=start)
     assert JobDriver(repo, job.id, local_executor, config).run() == STOPPED

@@ -107,8 +107,8 @@ def test_service_family_equals_the_command_lines(repo, config, executor, tmp_pat
     assert len(report["members"]) == 5 and len(report["checks"]["probes"]) == 3
     assert sorted(report["jobs"]) == sorted(r.id for r in plan_runs(fs) if r.id != "probes")
     jobs = repo.family_jobs(fid)
-    warm = [j for j in jobs.values() if j.start and j.start["from"].startswith("member-")]
-    assert warm and all(len(j.start["x0"]) == 8 for j in warm)  # warm-started from neighbours
+    warm = [j for j in jobs.values() if j.start and j.start.origin.startswith("member-")]
+    assert warm and all(len(j.start.x0) == 8 for j in warm)  # warm-started from neighbours
     assert repo.get_family(fid).status == FAMILY_DONE
     # each member landed in the library with its parameter
     decays = {c.decay for c in repo.list_cmrts("fam", limit=100)[0]}

@@ -7,7 +7,7 @@ import threading
 import pytest
 
 from store.errors import NotFound
-from store.records import CANCELLED, FAILED, FAMILY_DONE, FAMILY_RUNNING
+from store.records import CANCELLED, FAILED, FAMILY_DONE, FAMILY_RUNNING, JobStart
 from store.repository import SqlRepository
 
 SPEC = {"spec": {"name": "d"}, "param": "task.mass", "values": [30.0, 40.0]}
@@ -15,7 +15,7 @@ SPEC = {"spec": {"name": "d"}, "param": "task.mass", "values": [30.0, 40.0]}
 
 def _job(name: str = "d_mass30") -> dict:
     return {"spec": {"name": name}, "name": name, "family": "domino", "task": "domino",
-            "seed": 1, "start": {"from": "member-up-30", "x0": [0.5, 0.25]}}
+            "seed": 1, "start": JobStart("member-up-30", (0.5, 0.25))}
 
 
 def test_family_round_trip_and_runs(repo: SqlRepository) -> None:
@@ -25,7 +25,8 @@ def test_family_round_trip_and_runs(repo: SqlRepository) -> None:
     a = repo.add_family_run(f.id, "member-up-30", _job())
     again = repo.add_family_run(f.id, "member-up-30", _job("other"))
     assert again.id == a.id and again.name == "d_mass30"  # idempotent: the first job stays
-    assert a.start == {"from": "member-up-30", "x0": [0.5, 0.25]}
+    assert a.start == JobStart("member-up-30", (0.5, 0.25))
+    assert a.start.to_json() == {"from": "member-up-30", "x0": [0.5, 0.25]}
     b = repo.add_family_run(f.id, "reference-40", _job("d_mass40"))
     got = repo.get_family(f.id)
     assert got.runs == {"member-up-30": a.id, "reference-40": b.id}
