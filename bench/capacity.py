@@ -15,8 +15,8 @@ For each worker count W and evaluation time S, on a fresh database and broker:
   * W worker processes: ceil(W / --per-instance) instances of the product's worker command
     (`cmrt worker`, prefork, `--concurrency` up to --per-instance: one instance stands for one
     host), whose objective is `SleepingObjective(S)` (below), set through the product's
-    own objective hook (`worker.candidates.JobSpecs(factory)`, the one the local pool's
-    `objective_factory` fills) before Celery forks: the worker runs every store call, notice
+    own objective hook (`worker.candidates.JobSpecs(factory)`, the one the tests fill) before
+    Celery forks: the worker runs every store call, notice
     and Celery step of a real evaluation, only the simulation is a sleep;
   * J = max(4, ceil(--jobs-per-worker x W)) jobs... at least enough candidates in flight to
     keep W workers busy (J x popsize >= 1.25 W), created queued in the store (the driver's

@@ -151,7 +151,7 @@ def open_worker_repository(url: str) -> Repository:
     """The repository of an evaluation worker process (no schema migration: the API does it).
 
     No ping before each use of a pooled connection (it would be 2 of the 4 database round
-    trips per candidate): `run_candidate` retries its store calls on a fresh connection when the
+    trips per candidate): `run_candidates` retries its store calls on a fresh connection when the
     database connection was lost (`with_reconnect`).
     """
     from store import SqlRepository, make_engine
@@ -159,7 +159,7 @@ def open_worker_repository(url: str) -> Repository:
     return SqlRepository(make_engine(url, pool_pre_ping=False))
 
 
-#: How long a store call of `run_candidate` is retried while the database connection is lost.
+#: How long a store call of `run_candidates` is retried while the database connection is lost.
 RECONNECT_SECONDS = 30.0
 
 
@@ -170,7 +170,7 @@ def with_reconnect(call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
     OperationalError; SQLAlchemy has already discarded the dead connections, so the next try
     opens a fresh one).
 
-    Safe for the calls of `run_candidate`: a read, a first-result-wins write, or a claim, which
+    Safe for the calls of `run_candidates`: a read, a first-result-wins write, or a claim, which
     repeated after a commit whose reply was lost counts one attempt too many (erring toward
     failing a candidate early, never toward looping).
     """
@@ -312,17 +312,3 @@ class CandidateRun:
             raise
 
 
-def run_candidate(
-    repo: Repository,
-    job_id: str,
-    generation: int,
-    index: int,
-    *,
-    max_attempts: int,
-    cache: JobSpecs,
-    worker_name: str | None = None,
-    notify: Callable[[str, int, int], Any] | None = None,
-) -> dict[str, Any]:
-    """`run_candidates` of one candidate, in this process."""
-    return run_candidates(repo, job_id, generation, [index], max_attempts=max_attempts,
-                          cache=cache, worker_name=worker_name, notify=notify)[0]

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from local_pool import local_executor
 from synthetic import LineFamily
 
 from optim.executors import PoolExecutor, SerialExecutor
@@ -21,7 +22,6 @@ from optim.family.spec import parse_family
 from optim.family_run import run_family
 from store.records import CANCELLED, FAILED, FAMILY_DONE, FAMILY_RUNNING
 from worker.driver import JobDriver
-from worker.executors import LocalPoolExecutor
 from worker.family import FamilyDriver
 
 BASE: dict[str, Any] = {
@@ -45,8 +45,7 @@ def _objective(fs: Any, value: float) -> LineFamily:
 
 @pytest.fixture
 def executor(config):
-    ex = LocalPoolExecutor(config, pool=SerialExecutor(),
-                           objective_factory=lambda spec: _objective(None, spec.clip.decay))
+    ex = local_executor(config, SerialExecutor(), lambda spec: _objective(None, spec.clip.decay))
     yield ex
     ex.close()
 
@@ -131,7 +130,7 @@ BEND: dict[str, Any] = {
 def test_the_bend_family_is_the_same_through_both_drivers(repo, config, tmp_path: Path):
     """Real simulations: the runner in this process over a pool of two, the service's jobs
     over the API's local pool."""
-    sims = LocalPoolExecutor(config, pool=SerialExecutor())
+    sims = local_executor(config, SerialExecutor())
     fid = _create(repo, BEND)
     driver = FamilyDriver(repo, config, submit=lambda j: JobDriver(repo, j, sims, config).run(),
                           probe_executor=SerialExecutor())
@@ -189,8 +188,7 @@ def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, conf
     def same(fs: Any, value: float) -> LineFamily:
         return LineFamily(value=1.0, base=0.1, slope=0.2)
 
-    flat = LocalPoolExecutor(config, pool=SerialExecutor(),
-                             objective_factory=lambda spec: same(None, 0.0))
+    flat = local_executor(config, SerialExecutor(), lambda spec: same(None, 0.0))
     driver = FamilyDriver(repo, config, submit=lambda j: JobDriver(repo, j, flat, config).run(),
                           probe_executor=SerialExecutor(), objective_for=same)
     status = FAMILY_RUNNING

@@ -1,4 +1,4 @@
-"""worker.candidates.run_candidate (the body of the Celery task) against the real store, with a
+"""worker.candidates.run_candidates (the body of the Celery task) against the real store, with a
 synthetic objective: claim, skip, fail after max_attempts, evaluate, store (first result wins)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from synthetic import Sphere
 
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
 from store.repository import SqlRepository
-from worker.candidates import JobSpecs, run_candidate
+from worker.candidates import JobSpecs, run_candidates
 
 SPEC = {
     "name": "w_bend", "family": "bend",
@@ -54,8 +54,9 @@ def setup(repo):
 
 
 def run(repo, job_id, g, i, cache, max_attempts=3):
-    return run_candidate(repo, job_id, g, i, max_attempts=max_attempts, cache=cache,
-                         worker_name="w1/42")
+    """`run_candidates` of one candidate, as the Celery task runs it."""
+    return run_candidates(repo, job_id, g, [i], max_attempts=max_attempts, cache=cache,
+                          worker_name="w1/42")[0]
 
 
 def test_candidate_is_evaluated_once_and_its_result_stored(setup) -> None:

@@ -15,6 +15,7 @@ import uuid
 from pathlib import Path
 
 import pytest
+from local_pool import local_executor
 from proc_helpers import stop_group
 
 from cmrt.settings import Settings
@@ -24,7 +25,7 @@ from store import open_repository
 from store.records import DONE, QUEUED, STOPPED
 from worker.celery_app import make_celery
 from worker.driver import JobDriver
-from worker.executors import CeleryExecutor, LocalPoolExecutor
+from worker.executors import CeleryExecutor
 from worker.notify import NoticeWaiter, Notifier, notice_key
 
 pytestmark = pytest.mark.redis
@@ -101,7 +102,7 @@ def test_batched_celery_job_matches_the_local_pool_bit_for_bit(celery_worker):
     assert len(rows) == 10 and all((r.status, r.attempts) == (DONE, 1) for r in rows)
 
     ref = _job(repo, "same")
-    local = LocalPoolExecutor(settings, pool=SerialExecutor())  # the real objective
+    local = local_executor(settings, SerialExecutor())  # the real objective
     assert JobDriver(repo, ref.id, local, settings).run() == STOPPED
     a, b = repo.get_job(job.id), repo.get_job(ref.id)
     assert [g.best for g in repo.generations(job.id)] == \
