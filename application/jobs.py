@@ -21,13 +21,14 @@ START_CHOICES = ("library", "cold")
 
 def submit_job(repo: Repository, settings: Settings, spec: CanonicalSpec, *,
                seed: int = DEFAULT_SEED, basis_id: str | None = None,
-               start: str | JobStart = "library"
+               start: str | JobStart = "library", run: tuple[str, str] | None = None
                ) -> tuple[JobRecord, admission.Budget]:
     """Admit and store a new job of `spec` (canonicalised where it entered): the basis it
     names must fit the spec (`bases.UnusableBasisError`), its budget stay under the server's
     ceiling (`admission.BudgetExceeded`); it starts from the library unless `start` is
-    "cold" or it searches a basis. The spec is kept in this process' cache, so that a driver
-    here finds it without parsing."""
+    "cold" or it searches a basis. `run`: (family id, run id) for the job of a family's run,
+    created at most once (the run's job if it has one already). The spec is kept in this
+    process' cache, so that a driver here finds it without parsing."""
     typed = SPECS.put(spec).spec
     k = None if basis_id is None else job_basis(repo, basis_id, typed).k
     budget = admission.check(typed, settings, dimension=k)
@@ -35,10 +36,11 @@ def submit_job(repo: Repository, settings: Settings, spec: CanonicalSpec, *,
         warm: JobStart | None = start
     else:
         warm = library_start(repo, typed) if start == "library" and basis_id is None else None
-    job = repo.create_job(spec.document, spec_hash=spec.hash, name=typed.name,
-                          family=typed.family_name, task=typed.task_type, seed=seed,
-                          basis_id=basis_id, start=warm)
-    return job, budget
+    fields = {"spec_hash": spec.hash, "name": typed.name, "family": typed.family_name,
+              "task": typed.task_type, "seed": seed, "basis_id": basis_id, "start": warm}
+    if run is None:
+        return repo.create_job(spec.document, **fields), budget
+    return repo.add_family_run(run[0], run[1], spec.document, **fields), budget
 
 
 def stored_job_spec(job: JobRecord) -> CanonicalSpec:

@@ -42,8 +42,9 @@ from optim.errors import CheckpointError, EvaluationError
 from optim.executors import Executor
 from optim.family import machine
 from optim.family.plan import PROBES, PlannedRun, RunStart, plan_runs
-from optim.family.spec import FamilySpec, member_spec, parse_family
-from optim.objective import SIMULATOR_CACHE_SIZE, SimObjective
+from optim.family.report import family_report
+from optim.family.spec import FamilySpec, member_objective, member_spec, parse_family
+from optim.objective import SIMULATOR_CACHE_SIZE
 from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
 from optim.run import CANCELLED, optimize
@@ -52,11 +53,6 @@ ObjectiveFor = Callable[[FamilySpec, float], Callable[..., Any]]
 Log = Callable[[str], None]
 STATE_FILE = "family.json"
 PROBES_FILE = "probes.json"
-
-
-def default_objective(fs: FamilySpec, value: float) -> SimObjective:
-    """The simulation of the member at `value` (main rules: one simulator per value)."""
-    return SimObjective(member_spec(fs, value))
 
 
 @dataclass
@@ -187,7 +183,7 @@ class _Runner:
     def carry_out(self, action: machine.Action) -> dict[str, Any] | None:
         """Start a run or the probes; the family's document once it is finished."""
         if isinstance(action, machine.Finish):
-            return action.report
+            return family_report(self.fs, self.outcome.results, self.probes)
         if isinstance(action, machine.Fail):
             raise EvaluationError(f"run {action.run_id} {action.reason}")
         if isinstance(action, machine.EvaluateProbes):
@@ -239,7 +235,7 @@ def run_family(
     *,
     resume: bool = False,
     max_active: int | None = None,
-    objective_for: ObjectiveFor = default_objective,
+    objective_for: ObjectiveFor = member_objective,
     log: Log | None = None,
     reuse: list[Path] | None = None,
 ) -> FamilyOutcome:
@@ -265,4 +261,4 @@ def run_family(
     return outcome
 
 
-__all__ = ["FamilyOutcome", "default_objective", "load_finished", "run_family"]
+__all__ = ["FamilyOutcome", "load_finished", "run_family"]

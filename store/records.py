@@ -262,6 +262,19 @@ class FamilyRecord:
         return self.status in FAMILY_TERMINAL
 
 
+@dataclass(frozen=True)
+class FamilyScan:
+    """What a family driver reads of a family at one step, in one store call
+    (`FamilyRepository.family_scan`): the family, the job of every run started so far (run
+    id -> job), the result documents of the finished runs asked for (run id -> document),
+    the probes' outcomes (JSON data; None before they are evaluated)."""
+
+    family: FamilyRecord
+    jobs: dict[str, JobRecord]
+    results: dict[str, Any]
+    probes: Any | None
+
+
 @dataclass(frozen=True, slots=True)  # no __dict__: a library keeps thousands (store.library)
 class CmrtKey:
     """What picking and listing library CMRTs by task parameter needs, without their curves,

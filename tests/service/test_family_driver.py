@@ -61,7 +61,7 @@ def _drive(repo, config, executor, family_id: str, *, stop_after: int | None = N
         started.append(job_id)
         JobDriver(repo, job_id, executor, config).run()
 
-    driver = FamilyDriver(repo, submit=submit, probe_executor=SerialExecutor(),
+    driver = FamilyDriver(repo, config, submit=submit, probe_executor=SerialExecutor(),
                           objective_for=objective_for)
     status = FAMILY_RUNNING
     deadline = time.monotonic() + seconds
@@ -133,7 +133,7 @@ def test_the_bend_family_is_the_same_through_both_drivers(repo, config, tmp_path
     over the API's local pool."""
     sims = LocalPoolExecutor(config, pool=SerialExecutor())
     fid = _create(repo, BEND)
-    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, sims, config).run(),
+    driver = FamilyDriver(repo, config, submit=lambda j: JobDriver(repo, j, sims, config).run(),
                           probe_executor=SerialExecutor())
     status, deadline = FAMILY_RUNNING, time.monotonic() + 600
     try:
@@ -163,20 +163,20 @@ def test_a_driver_killed_midway_resumes_to_the_same_family(repo, config, executo
 
 def test_cancel_ends_the_family_and_its_jobs(repo, config, executor):
     fid = _create(repo, _family())
-    FamilyDriver(repo, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
+    FamilyDriver(repo, config, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
     runs = repo.get_family(fid).runs
     assert runs and all(repo.get_job(j).status == "queued" for j in runs.values())
     repo.request_family_cancel(fid)
-    assert FamilyDriver(repo, probe_executor=SerialExecutor()).advance(fid) == CANCELLED
+    assert FamilyDriver(repo, config, probe_executor=SerialExecutor()).advance(fid) == CANCELLED
     assert all(repo.get_job(j).status == CANCELLED for j in runs.values())
 
 
 def test_a_failed_run_fails_the_family_naming_it(repo, config, executor):
     fid = _create(repo, _family())
-    FamilyDriver(repo, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
+    FamilyDriver(repo, config, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
     run_id, job_id = sorted(repo.get_family(fid).runs.items())[0]
     repo.set_job_status(job_id, FAILED, error="boom")
-    assert FamilyDriver(repo, probe_executor=SerialExecutor()).advance(fid) == FAILED
+    assert FamilyDriver(repo, config, probe_executor=SerialExecutor()).advance(fid) == FAILED
     fam = repo.get_family(fid)
     assert run_id in fam.error and "boom" in fam.error
 
@@ -191,7 +191,7 @@ def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, conf
 
     flat = LocalPoolExecutor(config, pool=SerialExecutor(),
                              objective_factory=lambda spec: same(None, 0.0))
-    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, flat, config).run(),
+    driver = FamilyDriver(repo, config, submit=lambda j: JobDriver(repo, j, flat, config).run(),
                           probe_executor=SerialExecutor(), objective_for=same)
     status = FAMILY_RUNNING
     for _ in range(50):
@@ -228,7 +228,7 @@ def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, tmp
     def gated(fs: Any, value: float) -> Gated:
         return Gated(_objective(fs, value), gate, entered, left)
 
-    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, executor, config).run(),
+    driver = FamilyDriver(repo, config, submit=lambda j: JobDriver(repo, j, executor, config).run(),
                           probe_executor=SerialExecutor(), objective_for=gated)
     a = _create(repo, _family())
     try:
