@@ -59,7 +59,7 @@ class _Entry:
     simulator: Any = None
     #: A robust spec's variants' simulators by index (kept and dropped with `simulator`).
     variants: dict[int, Any] = field(default_factory=dict)
-    objectives: dict[Any, Any] = field(default_factory=dict)
+    objective: Any = None
 
 
 class SpecCache:
@@ -126,18 +126,13 @@ class SpecCache:
                     dropped.variants = {}
             return entry.simulator if variant is None else entry.variants[variant]
 
-    def objective(self, canonical: CanonicalSpec,
-                  factory: Callable[[TaskSpec], Any] | None = None) -> Any:
-        """The spec's objective: a `SimObjective` (factory None) or `factory(spec)`, made once
-        per spec and factory."""
+    def objective(self, canonical: CanonicalSpec) -> SimObjective:
+        """The spec's objective (its `SimObjective`), made once per spec."""
         with self._lock:
             entry = self._entry(canonical.hash, lambda: canonical)
-            hit = entry.objectives.get(factory)
-            if hit is None:
-                hit = (SimObjective(entry.canonical) if factory is None
-                       else factory(entry.canonical.spec))
-                entry.objectives[factory] = hit
-            return hit
+            if entry.objective is None:
+                entry.objective = SimObjective(entry.canonical)
+            return entry.objective
 
     def clear(self) -> None:
         with self._lock:

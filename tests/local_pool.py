@@ -41,11 +41,26 @@ class BatchPool:
         self.executor.close()
 
 
+class FactorySpecs(JobSpecs):
+    """`JobSpecs` whose jobs' objectives are `factory(typed spec)`, made once per spec."""
+
+    def __init__(self, factory: Callable[[Any], Any]) -> None:
+        super().__init__()
+        self.factory = factory
+        self._made: dict[str, Any] = {}
+
+    def get(self, repo: Any, job_id: str) -> tuple[Any, Any]:
+        spec, sim = super().get(repo, job_id)
+        if sim.spec_hash not in self._made:
+            self._made[sim.spec_hash] = self.factory(spec)
+        return spec, self._made[sim.spec_hash]
+
+
 def local_executor(config: Settings, pool: Executor | FairPool,
                    factory: Callable[[Any], Any] | None = None) -> LocalPoolExecutor:
     """A LocalPoolExecutor over `pool` (its own FairPool, never started, closed)."""
     ex = LocalPoolExecutor(config)
     ex.pool.close()
     ex.pool = pool if isinstance(pool, FairPool) else BatchPool(pool)  # type: ignore[assignment]
-    ex.cache = JobSpecs(factory)
+    ex.cache = JobSpecs() if factory is None else FactorySpecs(factory)
     return ex

@@ -51,7 +51,6 @@ from worker.fingerprints import process_fingerprint
 
 log = logging.getLogger(__name__)
 
-ObjectiveFactory = Callable[[TaskSpec], Callable[[np.ndarray], Any]]
 T = TypeVar("T")
 #: How `run_candidates` gets claimed candidates evaluated elsewhere (a process pool):
 #: `pool_run(objective, params, on_result)` calls `on_result(position, outcome | EvaluationError)`
@@ -104,20 +103,16 @@ def attempts_exhausted_message(generation: int, index: int, attempts: int) -> st
 class JobSpecs:
     """Job id -> the hash of its spec (a job's spec never changes), over the process's one
     spec cache (`optim.objective.SPECS`, which holds the typed specs, their simulators and
-    objectives): the store is read once per job, the spec parsed once per spec.
+    objectives): the store is read once per job, the spec parsed once per spec."""
 
-    factory: builds a job's objective from its typed spec (None: `SimObjective`, the
-    simulation); made once per spec and factory."""
-
-    def __init__(self, factory: ObjectiveFactory | None = None, size: int = 1024) -> None:
-        self.factory = factory
+    def __init__(self, size: int = 1024) -> None:
         self._hashes: LRU[str, str] = LRU(size)  # thread-safe: the driver threads share one
 
     def get(self, repo: Repository, job_id: str) -> tuple[TaskSpec, Any]:
         """The job's (typed spec, objective)."""
         canonical = job_spec(repo, job_id, self._hashes.get(job_id))
         self._hashes.put(job_id, canonical.hash)
-        return canonical.spec, SPECS.objective(canonical, self.factory)
+        return canonical.spec, SPECS.objective(canonical)
 
 
 #: EvalOutcome fields stored in an evaluation row's `details` when they are not None.

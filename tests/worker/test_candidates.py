@@ -4,12 +4,13 @@ synthetic objective: claim, skip, fail after max_attempts, evaluate, store (firs
 from __future__ import annotations
 
 import pytest
+from local_pool import FactorySpecs
 from store_helpers import get_evaluation
 from synthetic import Sphere
 
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
 from store.repository import SqlRepository
-from worker.candidates import JobSpecs, run_candidates
+from worker.candidates import run_candidates
 
 SPEC = {
     "name": "w_bend", "family": "bend",
@@ -49,7 +50,7 @@ def setup(repo):
     job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
     repo.set_job_status(job.id, "running")
     objective = Counting()
-    cache = JobSpecs(lambda spec: objective)
+    cache = FactorySpecs(lambda spec: objective)
     return repo, job.id, objective, cache
 
 
@@ -85,7 +86,7 @@ def test_fall_and_task_verdicts_are_stored_and_read_back_by_the_driver(repo) -> 
     repo.set_job_status(job.id, "running")
     verdict = EvalOutcome(objective=21.5, fell=True, cpu_seconds=0.1, fall_time=1.35,
                           fall_direction="backward", task_success=False)
-    cache = JobSpecs(lambda spec: (lambda x: verdict))
+    cache = FactorySpecs(lambda spec: (lambda x: verdict))
     repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5]])
     assert run(repo, job.id, 0, 0, cache)["status"] == "done"
     row = get_evaluation(repo, job.id, 0, 0)
@@ -146,7 +147,7 @@ def test_store_calls_survive_a_lost_database_connection(repo) -> None:
         job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
         repo.set_job_status(job.id, "running")
         repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5], [0.3, 0.3]])
-        cache = JobSpecs(lambda spec: Sphere(centre=0.3))
+        cache = FactorySpecs(lambda spec: Sphere(centre=0.3))
         assert run(worker_repo, job.id, 0, 0, cache)["status"] == "done"
         if engine.dialect.name == "postgresql":  # drop the pooled connection's session
             from sqlalchemy import text
