@@ -23,7 +23,7 @@ the actions out in threads and files; `worker.family` is the service's driver of
     `optimize` does: the pool posts a bound to the one slot running that candidate, so the
     batches in flight of the other members never read it.
 Objectives are `SimObjective` of the member's spec under the main rules (one simulator per
-value, whatever the run's rules); `objective_for` replaces them (tests: synthetic ones).
+value, whatever the run's rules: `optim.family.spec.member_objective`).
 """
 
 from __future__ import annotations
@@ -49,7 +49,6 @@ from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
 from optim.run import CANCELLED, optimize
 
-ObjectiveFor = Callable[[FamilySpec, float], Callable[..., Any]]
 Log = Callable[[str], None]
 STATE_FILE = "family.json"
 PROBES_FILE = "probes.json"
@@ -142,10 +141,10 @@ class _Runner:
     (`active`: run id, PROBES for the probes) and the runs that ended without a result."""
 
     def __init__(self, fs: FamilySpec, executor: Executor, state_dir: Path,
-                 objective_for: ObjectiveFor, say: Log, threads: cf.ThreadPoolExecutor,
+                 say: Log, threads: cf.ThreadPoolExecutor,
                  outcome: FamilyOutcome, probes: dict[float, EvalOutcome] | None) -> None:
         self.fs, self.executor, self.state_dir = fs, executor, state_dir
-        self.objective_for, self.say, self.threads = objective_for, say, threads
+        self.say, self.threads = say, threads
         self.outcome, self.probes = outcome, probes
         self.stop = threading.Event()
         self.active: dict[cf.Future, str] = {}
@@ -162,7 +161,7 @@ class _Runner:
         res = optimize(st.spec, self.executor, seed=self.fs.seed, x0=st.x0, basis=st.basis,
                        checkpoint=self.state_dir / f"{run.id}.ckpt", resume=True,
                        progress=lambda _s: self.stop.is_set(),
-                       objective=self.objective_for(self.fs, run.value))
+                       objective=member_objective(self.fs, run.value))
         if res.stop_rule == CANCELLED:
             return None  # its checkpoint holds the generations made; the next resume goes on
         res.save(self.state_dir / f"{run.id}.json")
@@ -172,7 +171,7 @@ class _Runner:
     def evaluate_probes(self, points: Sequence[tuple[float, Any]]) -> dict[float, EvalOutcome]:
         # one batch per value's objective, all submitted before waiting: the pool stays full
         with cf.ThreadPoolExecutor(max(1, len(points))) as tp:
-            futs = [tp.submit(self.executor.map, self.objective_for(self.fs, v), [p])
+            futs = [tp.submit(self.executor.map, member_objective(self.fs, v), [p])
                     for v, p in points]
             outs = [f.result()[0] for f in futs]
         got = {v: o for (v, _), o in zip(points, outs, strict=True)}
@@ -235,7 +234,6 @@ def run_family(
     *,
     resume: bool = False,
     max_active: int | None = None,
-    objective_for: ObjectiveFor = member_objective,
     log: Log | None = None,
     reuse: list[Path] | None = None,
 ) -> FamilyOutcome:
@@ -251,7 +249,7 @@ def run_family(
     cap = max_active or max(2, min(executor.workers + 1, SIMULATOR_CACHE_SIZE))
     outcome = FamilyOutcome(results, {}, 0.0)
     with cf.ThreadPoolExecutor(cap, thread_name_prefix="cmrt-family") as threads:
-        runner = _Runner(fs, executor, state_dir, objective_for, say, threads, outcome, probes)
+        runner = _Runner(fs, executor, state_dir, say, threads, outcome, probes)
         try:
             outcome.report = runner.drive(runs, cap)
         finally:

@@ -60,14 +60,12 @@ from store.records import CANCELLED, FAILED, FAMILY_DONE, JobStart
 
 log = logging.getLogger(__name__)
 
-ObjectiveFor = Callable[[FamilySpec, float], Callable[..., Any]]
-
 
 class FamilyDriver:
     """Advances families (see module docstring). `submit(job_id)` starts a job's driver now
-    (the scan would find it later anyway); `probe_executor` evaluates the probes (default: a
-    process of its own, so a simulation never holds this process' interpreter), called from a
-    thread of the driver's own so that `advance` never waits for a simulation. `settings`:
+    (the scan would find it later anyway); the probes are evaluated in a process of the
+    driver's own (a simulation never holds this process' interpreter), called from a thread of
+    the driver's own so that `advance` never waits for a simulation. `settings`:
     the server's, which the runs' jobs are admitted under as any job is."""
 
     def __init__(
@@ -76,14 +74,10 @@ class FamilyDriver:
         settings: Settings,
         *,
         submit: Callable[[str], Any] | None = None,
-        probe_executor: Executor | None = None,
-        objective_for: ObjectiveFor = member_objective,
     ) -> None:
         self.repo, self.settings = repo, settings
         self.submit = submit or (lambda _job_id: None)
-        self._probe_executor = probe_executor
-        self._own_executor = probe_executor is None
-        self.objective_for = objective_for
+        self._probe_executor: Executor | None = None
         self._lock = threading.Lock()
         #: Parsed results of finished runs, per family (a finished job's result never changes).
         self._results: dict[str, dict[str, OptimizationResult]] = {}
@@ -94,7 +88,7 @@ class FamilyDriver:
 
     def close(self) -> None:
         """Stop evaluating probes (an evaluation under way ends with its process; a later
-        driver evaluates them again) and release the probe executor if it is the driver's."""
+        driver evaluates them again) and release the probes' process."""
         with self._lock:
             self._closed = True
             for fut in self._probing.values():
@@ -104,7 +98,7 @@ class FamilyDriver:
         if thread is not None:
             thread.shutdown(wait=False, cancel_futures=True)
         with self._lock:
-            if self._own_executor and self._probe_executor is not None:
+            if self._probe_executor is not None:
                 self._probe_executor.close()
                 self._probe_executor = None
 
@@ -253,7 +247,7 @@ class FamilyDriver:
                          points: list[tuple[float, np.ndarray]]) -> dict[float, EvalOutcome]:
         """In the probe thread: each probe's outcome, evaluated through the probe executor."""
         ex = self._probes_executor()
-        return {v: ex.map(self.objective_for(fs, v), [params])[0] for v, params in points}
+        return {v: ex.map(member_objective(fs, v), [params])[0] for v, params in points}
 
 
 __all__ = ["FamilyDriver"]
