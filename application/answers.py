@@ -50,13 +50,14 @@ from application.library import (
 )
 from cmrt.canonical import text_hash
 from cmrt.defaults import DEFAULT_SEED
+from cmrt.lru import LRU
 from cmrt.settings import Settings
 from optim.errors import InterpolationError
 from optim.interpolate import InterpolatedCmrt
 from optim.spline import CmrtSpline, encode, sample_curve
 from sim.errors import SpecError
 from sim.spec import CanonicalSpec, TaskSpec, parse_canonical, parse_spec
-from store import CmrtRecord, JobRecord, NotFound, Repository
+from store import CmrtRecord, JobRecord, JobStart, NotFound, Repository
 
 #: A verified answer whose objective exceeds the library's prediction (the neighbours'
 #: objectives interpolated at the value) by more than this fraction is weak: the neighbouring
@@ -345,12 +346,10 @@ def refine(repo: Repository, settings: Settings, cmd: Refine) -> Refinement:
         "window": REFINE_WINDOW, "improvement": REFINE_IMPROVEMENT})})
     canonical = parse_canonical(typed.model_dump(mode="json"), "spec")
     x0 = [float(v) for v in encode(canonical.spec, start_from.spline)]
-    start = {
-        "kind": "refine",
-        "from": (f"refinement in basis {basis.id} at {key} = {value:g}, started at the "
-                 f"{start_from.source} answer of " + ", ".join(start_from.ids)),
-        "x0": x0, "sigma0": REFINE_SIGMA0, "cmrts": start_from.ids,
-    }
+    start = JobStart(
+        (f"refinement in basis {basis.id} at {key} = {value:g}, started at the "
+         f"{start_from.source} answer of " + ", ".join(start_from.ids)),
+        tuple(x0), REFINE_SIGMA0, tuple(start_from.ids), kind="refine")
     job, budget = jobs.submit_job(repo, settings, canonical, seed=cmd.seed, basis_id=basis.id,
                                   start=start)
     return Refinement(job, budget, answer)
@@ -449,10 +448,10 @@ def _member_source(repo: Repository, rec: CmrtRecord) -> str:
     if rec.job_id is None:
         return "member"
     try:
-        start = repo.get_job(rec.job_id).start or {}
+        start = repo.get_job(rec.job_id).start
     except NotFound:
         return "member"
-    return "refined" if start.get("kind") == "refine" else "member"
+    return "refined" if start is not None and start.kind == "refine" else "member"
 
 
 def _switch(recs: list[CmrtRecord], key: str) -> dict[str, Any]:
@@ -476,21 +475,19 @@ def _predicted(got: InterpolatedCmrt, recs: list[CmrtRecord]) -> float:
 
 #: Query specs this process has built (library entries never change, so a member's id, the
 #: parameter and the value name one spec): a kept answer is served without parsing a spec.
-_SPECS_AT: OrderedDict[tuple[Any, ...], CanonicalSpec] = OrderedDict()
 #: How many query specs are kept (a few kB each).
 SPECS_AT_CACHED = 1024
-_SPECS_AT_LOCK = threading.Lock()
+_SPECS_AT: LRU[tuple[Any, ...], CanonicalSpec] = LRU(SPECS_AT_CACHED)
+_SPECS_AT_LOCK = threading.Lock()  # guards `_PATHS`
 
 
 def _spec_at(rec: CmrtRecord, key: str, value: float,
              filters: Mapping[str, float] | None) -> CanonicalSpec:
     """The spec of the query: member `rec`'s spec with `key` (and the filters) set."""
     cache_key = (rec.id, key, float(value), tuple(sorted((filters or {}).items())))
-    with _SPECS_AT_LOCK:  # the service answers on several threads
-        got = _SPECS_AT.get(cache_key)
-        if got is not None:
-            _SPECS_AT.move_to_end(cache_key)
-            return got
+    got = _SPECS_AT.get(cache_key)  # the service answers on several threads: LRU locks
+    if got is not None:
+        return got
     spec: TaskSpec = parse_spec(rec.spec, f"library CMRT {rec.id}")
     doc = spec.with_parameter(key, value)
     doc["optimize"].pop("robust", None)  # the query is one scene, not a robust CMRT's range
@@ -500,10 +497,7 @@ def _spec_at(rec: CmrtRecord, key: str, value: float,
         got = parse_canonical(doc, "spec")
     except SpecError as err:
         raise AnswerError(f"{key}: {value:g} makes the task invalid: {err}") from None
-    with _SPECS_AT_LOCK:
-        _SPECS_AT[cache_key] = got
-        if len(_SPECS_AT) > SPECS_AT_CACHED:
-            _SPECS_AT.popitem(last=False)
+    _SPECS_AT.put(cache_key, got)
     return got
 
 

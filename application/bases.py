@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from application.errors import InvalidRequest
 from application.library import library_members
 from optim.cmaes import MIN_DIMENSION
@@ -21,20 +19,13 @@ class UnusableBasisError(InvalidRequest):
 
 
 def basis_from_record(rec: Any) -> Basis:
-    """optim Basis from a store BasisRecord (box holds score_lo/score_hi, margin, cmrt)."""
-    box = rec.box or {}
-    return Basis(
-        family=rec.family,
-        k=rec.k,
-        mean=np.asarray(rec.mean, dtype=float),
-        components=np.asarray(rec.components, dtype=float),
-        variance_explained=np.asarray(rec.variance_explained, dtype=float),
-        members=list(rec.members),
-        score_lo=np.asarray(box["score_lo"], dtype=float),
-        score_hi=np.asarray(box["score_hi"], dtype=float),
-        cmrt=dict(box.get("cmrt") or {}),
-        margin=float(box.get("margin", 0.25)),
-    )
+    """optim Basis from a store BasisRecord (box holds score_lo/score_hi, margin, cmrt): the
+    basis's own form (`Basis.from_dict`), its arrays in the record's columns."""
+    box = {k: v for k, v in (rec.box or {}).items() if k != "content_id"}
+    return Basis.from_dict({"family": rec.family, "k": rec.k, "mean": rec.mean,
+                            "components": rec.components, "members": rec.members,
+                            "variance_explained": rec.variance_explained, **box},
+                           f"basis {rec.id}")
 
 
 def job_basis(repo: Repository, basis_id: str, spec: TaskSpec) -> Basis:
@@ -58,21 +49,12 @@ def job_basis(repo: Repository, basis_id: str, spec: TaskSpec) -> Basis:
 
 def store_basis(repo: Repository, basis: Basis, family: str, members: list[str]) -> str:
     """Keep a PCA basis in the store (`basis_from_record` reads it back); returns its id."""
+    d = basis.to_dict()
     return repo.add_basis(
-        family=family,
-        k=basis.k,
-        mean=[float(v) for v in basis.mean],
-        components=[[float(v) for v in row] for row in basis.components],
-        variance_explained=[float(v) for v in basis.variance_explained],
-        members=members,
-        box={
-            "score_lo": [float(v) for v in basis.score_lo],
-            "score_hi": [float(v) for v in basis.score_hi],
-            "margin": basis.margin,
-            "cmrt": basis.cmrt,
-            "content_id": basis.id,
-        },
-    )
+        family=family, k=basis.k, mean=d["mean"], components=d["components"],
+        variance_explained=d["variance_explained"], members=members,
+        box={"score_lo": d["score_lo"], "score_hi": d["score_hi"], "margin": basis.margin,
+             "cmrt": basis.cmrt, "content_id": basis.id})
 
 
 def build_library_basis(repo: Repository, family: str, k: int = DEFAULT_K) -> str:

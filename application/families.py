@@ -48,7 +48,7 @@ def _run_row(run: PlannedRun, job: Any, job_url: Callable[[str], str]) -> dict[s
         "status": "not started" if job is None else job.status,
         "best_objective": None if job is None else job.best_objective,
         "evaluations": 0 if job is None else job.evaluations,
-        "start": None if job is None or not job.start else job.start.get("from"),
+        "start": None if job is None or job.start is None else job.start.origin,
     }
 
 

@@ -4,8 +4,6 @@ cache (`optim.objective.SPECS`), so that a process parses a job's spec at most o
 
 from __future__ import annotations
 
-from typing import Any
-
 from application import admission
 from application.bases import job_basis
 from application.library import library_start
@@ -13,7 +11,7 @@ from cmrt.defaults import DEFAULT_SEED
 from cmrt.settings import Settings
 from optim.objective import SPECS
 from sim.spec import CanonicalSpec, stored_spec
-from store import JobRecord, Repository
+from store import JobRecord, JobStart, Repository
 
 #: `start`: "library" starts from the library's CMRT at the spec's task parameters when it has
 #: one (interpolated between neighbours, or stored there), else the flat spline; "cold" always
@@ -23,24 +21,26 @@ START_CHOICES = ("library", "cold")
 
 def submit_job(repo: Repository, settings: Settings, spec: CanonicalSpec, *,
                seed: int = DEFAULT_SEED, basis_id: str | None = None,
-               start: str | dict[str, Any] = "library"
+               start: str | JobStart = "library", run: tuple[str, str] | None = None
                ) -> tuple[JobRecord, admission.Budget]:
     """Admit and store a new job of `spec` (canonicalised where it entered): the basis it
     names must fit the spec (`bases.UnusableBasisError`), its budget stay under the server's
     ceiling (`admission.BudgetExceeded`); it starts from the library unless `start` is
-    "cold" or it searches a basis. The spec is kept in this process' cache, so that a driver
-    here finds it without parsing."""
+    "cold" or it searches a basis. `run`: (family id, run id) for the job of a family's run,
+    created at most once (the run's job if it has one already). The spec is kept in this
+    process' cache, so that a driver here finds it without parsing."""
     typed = SPECS.put(spec).spec
     k = None if basis_id is None else job_basis(repo, basis_id, typed).k
     budget = admission.check(typed, settings, dimension=k)
-    if isinstance(start, dict):
-        warm: dict[str, Any] | None = start
+    if isinstance(start, JobStart):
+        warm: JobStart | None = start
     else:
         warm = library_start(repo, typed) if start == "library" and basis_id is None else None
-    job = repo.create_job(spec.document, spec_hash=spec.hash, name=typed.name,
-                          family=typed.family_name, task=typed.task_type, seed=seed,
-                          basis_id=basis_id, start=warm)
-    return job, budget
+    fields = {"spec_hash": spec.hash, "name": typed.name, "family": typed.family_name,
+              "task": typed.task_type, "seed": seed, "basis_id": basis_id, "start": warm}
+    if run is None:
+        return repo.create_job(spec.document, **fields), budget
+    return repo.add_family_run(run[0], run[1], spec.document, **fields), budget
 
 
 def stored_job_spec(job: JobRecord) -> CanonicalSpec:

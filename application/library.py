@@ -18,7 +18,7 @@ from optim.family.spec import SWITCH_DISTANCE
 from optim.interpolate import InterpolatedCmrt, bracket, interpolate
 from optim.spline import CmrtSpline, decode, encode, sample_curve
 from sim.spec import TaskSpec, parse_spec
-from store import CmrtEntry, CmrtKey, CmrtRecord, Repository
+from store import CmrtEntry, CmrtKey, CmrtRecord, JobStart, Repository
 
 #: Largest number of library CMRTs read for one interpolation or basis.
 MAX_MEMBERS = 10_000
@@ -184,7 +184,7 @@ def interpolated_at(
 LIBRARY_WARM_SIGMA0 = 0.05
 
 
-def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
+def library_start(repo: Repository, spec: TaskSpec) -> JobStart | None:
     """Where a new job of `spec` starts when the library knows its neighbourhood: the CMRT
     interpolated along one task parameter between library CMRTs of the spec's family on
     either side (the others equal), or the stored CMRT at exactly these parameters, encoded
@@ -225,8 +225,7 @@ def library_start(repo: Repository, spec: TaskSpec) -> dict[str, Any] | None:
             x0 = encode(spec, spline)
         except ParamsError:  # another spline layout: not a start for this spec
             continue
-        return {"from": what, "x0": [float(v) for v in x0], "sigma0": LIBRARY_WARM_SIGMA0,
-                "cmrts": ids}
+        return JobStart(what, tuple(float(v) for v in x0), LIBRARY_WARM_SIGMA0, tuple(ids))
     return None
 
 

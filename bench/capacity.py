@@ -15,8 +15,8 @@ For each worker count W and evaluation time S, on a fresh database and broker:
   * W worker processes: ceil(W / --per-instance) instances of the product's worker command
     (`cmrt worker`, prefork, `--concurrency` up to --per-instance: one instance stands for one
     host), whose objective is `SleepingObjective(S)` (below), set through the product's
-    own objective hook (`worker.candidates.JobSpecs(factory)`, the one the local pool's
-    `objective_factory` fills) before Celery forks: the worker runs every store call, notice
+    job cache (`worker.tasks._cache`, a `worker.candidates.JobSpecs` whose objective sleeps) before
+    Celery forks: the worker runs every store call, notice
     and Celery step of a real evaluation, only the simulation is a sleep;
   * J = max(4, ceil(--jobs-per-worker x W)) jobs... at least enough candidates in flight to
     keep W workers busy (J x popsize >= 1.25 W), created queued in the store (the driver's
@@ -296,7 +296,11 @@ def run_worker(args: argparse.Namespace) -> int:
     from worker.candidates import JobSpecs
 
     objective = SleepingObjective(args.sleep)
-    tasks._cache = JobSpecs(lambda _spec: objective)  # before Celery forks its pool
+    class Sleeping(JobSpecs):  # every job's objective sleeps
+        def get(self, repo, job_id):
+            return super().get(repo, job_id)[0], objective
+
+    tasks._cache = Sleeping()  # before Celery forks its pool
     if not args.threads:
         return cmrt_main(["worker", "--concurrency", str(args.concurrency), "--hostname",
                           args.hostname])

@@ -27,7 +27,8 @@ From that account it prints the ratio the CPU alone predicts for an otherwise id
 as many cores as workers, every process CPU-bound and no idle gaps:
 (sim + pool overhead) / (sim + Celery overhead), sim being the simulations' own CPU per
 candidate. It prints the load average before and after each clip length.
-`--store N` also times the worker's store path alone: `worker.candidates.run_candidate` with a
+`--store N` also times the worker's store path alone: `worker.candidates.run_candidates` of
+one candidate with a
 null objective on a worker's repository, N times in this process against the same PostgreSQL
 database (median and mean wall ms, mean CPU ms).
 No assertions: timings on a shared machine are noisy; run it on an otherwise idle machine for
@@ -264,22 +265,27 @@ def celery(spec, warm, workers: int, scratch: _Scratch):
 
 
 def store_path(spec, n: int, scratch: _Scratch) -> dict:
-    """Median and mean ms of `run_candidate` with a null objective (claim, result; no Celery)."""
-    from worker.candidates import JobSpecs, open_worker_repository, run_candidate
+    """Median and mean ms of `run_candidates` of one candidate with a null objective (claim,
+    result; no Celery)."""
+    from worker.candidates import JobSpecs, open_worker_repository, run_candidates
 
     repo = open_worker_repository(scratch.db_url)  # as in a Celery worker process
     try:
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task_type, seed=0)
         repo.set_job_status(job.id, "running")
-        cache = JobSpecs(lambda _spec: (lambda _x: 1.0))
+        class Null(JobSpecs):  # every job's objective is 1.0 at once
+            def get(self, repo, job_id):
+                return super().get(repo, job_id)[0], lambda _x: 1.0
+
+        cache = Null()
         pop, times, cpu = 16, [], 0.0
         for g in range(100, 100 + (n + pop - 1) // pop + 1):
             repo.put_pending_evaluations(job.id, g, [[0.5] * spec.cmrt_dimension] * pop)
             for i in range(pop):
                 t0, c0 = time.perf_counter(), time.process_time()
-                out = run_candidate(repo, job.id, g, i, max_attempts=3, cache=cache,
-                                    worker_name="bench")
+                out = run_candidates(repo, job.id, g, [i], max_attempts=3, cache=cache,
+                                     worker_name="bench")[0]
                 if g > 100:  # the first generation warms up (connection, statements)
                     times.append(time.perf_counter() - t0)
                     cpu += time.process_time() - c0
@@ -363,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=3,
                    help="measurements per side, alternating pool and Celery (medians shown)")
     p.add_argument("--store", type=int, default=0, metavar="N",
-                   help="also time run_candidate with a null objective N times")
+                   help="also time run_candidates (one candidate) with a null objective N times")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     from cmrt.settings import get_settings
@@ -406,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"{k} {v:.2f}" for k, v in parts.items() if k not in ("wall", "sim"))
                   + f"; sim {parts['sim']:.1f}, wall {parts['wall']:.1f}")
     if store:
-        print(f"store path (run_candidate, null objective, PostgreSQL): median "
+        print(f"store path (run_candidates, null objective, PostgreSQL): median "
               f"{store['store_ms_median']:.2f} ms, mean {store['store_ms_mean']:.2f} ms, "
               f"CPU {store['store_cpu_ms_mean']:.2f} ms over {store['store_n']} candidates")
     return 0

@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import time
+from dataclasses import asdict
 
 from optim.executors import PoolExecutor, SerialExecutor
 from optim.loop import SearchSpace, final_evaluation, new_optimizer, run_generations
@@ -30,7 +31,7 @@ class _Record:
         return None
 
     def save(self, opt, generation, stats, candidates, wall_seconds) -> None:  # noqa: ANN001
-        d = stats.to_dict()
+        d = asdict(stats)
         d.pop("worst")
         self.rows.append({"stats": d, "mean": opt.mean.tobytes(), "sigma": opt.sigma,
                           "C": opt.covariance.tobytes(),

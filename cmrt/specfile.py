@@ -46,19 +46,29 @@ class SpecReadError(ValueError):
     field naming it)."""
 
 
-def read_document(path: str | Path, what: str = "spec") -> Any:
-    """The YAML or JSON document in a file (JSON when its name ends in .json), bounded in size.
-    `what` names the file in messages (`cannot read spec`)."""
+def read_bytes(path: str | Path, what: str, limit: int | None = None) -> bytes:
+    """A file's bytes, at most `limit` (None: MAX_FILE_BYTES) of them: every file the command
+    line reads is untrusted (a spec, a character, a map, a motion clip). `what` names the file
+    in messages."""
     p = Path(path)
+    limit = MAX_FILE_BYTES if limit is None else limit
     try:
         with p.open("rb") as f:
-            raw = f.read(MAX_FILE_BYTES + 1)
+            raw = f.read(limit + 1)
     except FileNotFoundError:
         raise SpecReadError(f"{p}: cannot read {what} (no such file)") from None
     except OSError as err:
         raise SpecReadError(f"{p}: cannot read {what} ({err.strerror or err})") from None
-    if len(raw) > MAX_FILE_BYTES:
-        raise SpecReadError(f"{p}: larger than {MAX_FILE_BYTES} bytes")
+    if len(raw) > limit:
+        raise SpecReadError(f"{p}: larger than {limit} bytes")
+    return raw
+
+
+def read_document(path: str | Path, what: str = "spec", limit: int | None = None) -> Any:
+    """The YAML or JSON document in a file (JSON when its name ends in .json), at most `limit`
+    (None: MAX_FILE_BYTES) bytes. `what` names the file in messages (`cannot read spec`)."""
+    p = Path(path)
+    raw = read_bytes(p, what, limit)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:

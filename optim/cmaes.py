@@ -90,9 +90,6 @@ class StopRules:
             max_evaluations=cfg.max_evaluations,
         )
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
     def slow(self, best_so_far: Sequence[float], evaluations: int) -> bool:
         """The slow-convergence rule after a generation: `best_so_far` is the run's best so
         far after each generation up to this one (oldest first; only the last `window` + 1
@@ -114,7 +111,7 @@ class StopRules:
         search, only where it ends."""
         best: list[float] = []
         for i, h in enumerate(history):
-            d = h if isinstance(h, dict) else h.to_dict()
+            d = h if isinstance(h, dict) else asdict(h)
             best.append(float(d["best_so_far"]))
             evaluations = int(d["evaluations"])
             if self.threshold is not None and best[-1] <= self.threshold:
@@ -137,9 +134,6 @@ class GenerationStats:
     worst: float  # a lower bound of it when the last was cut early (optim.rankcut)
     sigma: float
     best_so_far: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> GenerationStats:

@@ -23,7 +23,7 @@ the actions out in threads and files; `worker.family` is the service's driver of
     `optimize` does: the pool posts a bound to the one slot running that candidate, so the
     batches in flight of the other members never read it.
 Objectives are `SimObjective` of the member's spec under the main rules (one simulator per
-value, whatever the run's rules); `objective_for` replaces them (tests: synthetic ones).
+value, whatever the run's rules: `optim.family.spec.member_objective`).
 """
 
 from __future__ import annotations
@@ -42,21 +42,16 @@ from optim.errors import CheckpointError, EvaluationError
 from optim.executors import Executor
 from optim.family import machine
 from optim.family.plan import PROBES, PlannedRun, RunStart, plan_runs
-from optim.family.spec import FamilySpec, member_spec, parse_family
-from optim.objective import SIMULATOR_CACHE_SIZE, SimObjective
+from optim.family.report import family_report
+from optim.family.spec import FamilySpec, member_objective, member_spec, parse_family
+from optim.objective import SIMULATOR_CACHE_SIZE
 from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
 from optim.run import CANCELLED, optimize
 
-ObjectiveFor = Callable[[FamilySpec, float], Callable[..., Any]]
 Log = Callable[[str], None]
 STATE_FILE = "family.json"
 PROBES_FILE = "probes.json"
-
-
-def default_objective(fs: FamilySpec, value: float) -> SimObjective:
-    """The simulation of the member at `value` (main rules: one simulator per value)."""
-    return SimObjective(member_spec(fs, value))
 
 
 @dataclass
@@ -146,10 +141,10 @@ class _Runner:
     (`active`: run id, PROBES for the probes) and the runs that ended without a result."""
 
     def __init__(self, fs: FamilySpec, executor: Executor, state_dir: Path,
-                 objective_for: ObjectiveFor, say: Log, threads: cf.ThreadPoolExecutor,
+                 say: Log, threads: cf.ThreadPoolExecutor,
                  outcome: FamilyOutcome, probes: dict[float, EvalOutcome] | None) -> None:
         self.fs, self.executor, self.state_dir = fs, executor, state_dir
-        self.objective_for, self.say, self.threads = objective_for, say, threads
+        self.say, self.threads = say, threads
         self.outcome, self.probes = outcome, probes
         self.stop = threading.Event()
         self.active: dict[cf.Future, str] = {}
@@ -166,7 +161,7 @@ class _Runner:
         res = optimize(st.spec, self.executor, seed=self.fs.seed, x0=st.x0, basis=st.basis,
                        checkpoint=self.state_dir / f"{run.id}.ckpt", resume=True,
                        progress=lambda _s: self.stop.is_set(),
-                       objective=self.objective_for(self.fs, run.value))
+                       objective=member_objective(self.fs, run.value))
         if res.stop_rule == CANCELLED:
             return None  # its checkpoint holds the generations made; the next resume goes on
         res.save(self.state_dir / f"{run.id}.json")
@@ -176,7 +171,7 @@ class _Runner:
     def evaluate_probes(self, points: Sequence[tuple[float, Any]]) -> dict[float, EvalOutcome]:
         # one batch per value's objective, all submitted before waiting: the pool stays full
         with cf.ThreadPoolExecutor(max(1, len(points))) as tp:
-            futs = [tp.submit(self.executor.map, self.objective_for(self.fs, v), [p])
+            futs = [tp.submit(self.executor.map, member_objective(self.fs, v), [p])
                     for v, p in points]
             outs = [f.result()[0] for f in futs]
         got = {v: o for (v, _), o in zip(points, outs, strict=True)}
@@ -187,7 +182,7 @@ class _Runner:
     def carry_out(self, action: machine.Action) -> dict[str, Any] | None:
         """Start a run or the probes; the family's document once it is finished."""
         if isinstance(action, machine.Finish):
-            return action.report
+            return family_report(self.fs, self.outcome.results, self.probes)
         if isinstance(action, machine.Fail):
             raise EvaluationError(f"run {action.run_id} {action.reason}")
         if isinstance(action, machine.EvaluateProbes):
@@ -239,7 +234,6 @@ def run_family(
     *,
     resume: bool = False,
     max_active: int | None = None,
-    objective_for: ObjectiveFor = default_objective,
     log: Log | None = None,
     reuse: list[Path] | None = None,
 ) -> FamilyOutcome:
@@ -255,7 +249,7 @@ def run_family(
     cap = max_active or max(2, min(executor.workers + 1, SIMULATOR_CACHE_SIZE))
     outcome = FamilyOutcome(results, {}, 0.0)
     with cf.ThreadPoolExecutor(cap, thread_name_prefix="cmrt-family") as threads:
-        runner = _Runner(fs, executor, state_dir, objective_for, say, threads, outcome, probes)
+        runner = _Runner(fs, executor, state_dir, say, threads, outcome, probes)
         try:
             outcome.report = runner.drive(runs, cap)
         finally:
@@ -265,4 +259,4 @@ def run_family(
     return outcome
 
 
-__all__ = ["FamilyOutcome", "default_objective", "load_finished", "run_family"]
+__all__ = ["FamilyOutcome", "load_finished", "run_family"]

@@ -23,7 +23,6 @@ Contracts:
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -31,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cmrt.canonical import canonical_json, text_hash
+from cmrt.lru import LRU
 from optim.outcome import CuttableObjective, EvalOutcome
 from optim.robust import split_point
 from optim.spline import decode
@@ -59,7 +59,7 @@ class _Entry:
     simulator: Any = None
     #: A robust spec's variants' simulators by index (kept and dropped with `simulator`).
     variants: dict[int, Any] = field(default_factory=dict)
-    objectives: dict[Any, Any] = field(default_factory=dict)
+    objective: Any = None
 
 
 class SpecCache:
@@ -69,8 +69,8 @@ class SpecCache:
     def __init__(self, size: int = SPEC_CACHE_SIZE,
                  simulators: int = SIMULATOR_CACHE_SIZE) -> None:
         self.size, self.simulators = size, simulators
-        self._d: OrderedDict[str, _Entry] = OrderedDict()
-        self._sims: OrderedDict[str, None] = OrderedDict()  # hashes whose simulator is built
+        self._d: LRU[str, _Entry] = LRU(size)
+        self._sims: LRU[str, None] = LRU(simulators)  # hashes whose simulator is built
         # re-entrant: an objective made under it puts its spec; a load under it parses once
         self._lock = threading.RLock()
 
@@ -84,13 +84,10 @@ class SpecCache:
         with self._lock:
             hit = self._d.get(hash)
             if hit is not None:
-                self._d.move_to_end(hash)
                 return hit
             entry = _Entry(load())
-            self._d[hash] = entry
-            while len(self._d) > self.size:
-                old, _ = self._d.popitem(last=False)
-                self._sims.pop(old, None)
+            for old, _ in self._d.put(hash, entry):
+                self._sims.pop(old)
             return entry
 
     def put(self, canonical: CanonicalSpec) -> CanonicalSpec:
@@ -122,27 +119,20 @@ class SpecCache:
                 entry.simulator = _rollout(entry.canonical.spec)
             elif variant is not None and variant not in entry.variants:
                 entry.variants[variant] = _rollout(_variant_spec(entry.canonical, variant))
-            self._sims[canonical.hash] = None
-            self._sims.move_to_end(canonical.hash)
-            while len(self._sims) > self.simulators:
-                old, _ = self._sims.popitem(last=False)
-                if old in self._d:
-                    self._d[old].simulator = None
-                    self._d[old].variants = {}
+            for old, _ in self._sims.put(canonical.hash, None):
+                dropped = self._d.peek(old)
+                if dropped is not None:
+                    dropped.simulator = None
+                    dropped.variants = {}
             return entry.simulator if variant is None else entry.variants[variant]
 
-    def objective(self, canonical: CanonicalSpec,
-                  factory: Callable[[TaskSpec], Any] | None = None) -> Any:
-        """The spec's objective: a `SimObjective` (factory None) or `factory(spec)`, made once
-        per spec and factory."""
+    def objective(self, canonical: CanonicalSpec) -> SimObjective:
+        """The spec's objective (its `SimObjective`), made once per spec."""
         with self._lock:
             entry = self._entry(canonical.hash, lambda: canonical)
-            hit = entry.objectives.get(factory)
-            if hit is None:
-                hit = (SimObjective(entry.canonical) if factory is None
-                       else factory(entry.canonical.spec))
-                entry.objectives[factory] = hit
-            return hit
+            if entry.objective is None:
+                entry.objective = SimObjective(entry.canonical)
+            return entry.objective
 
     def clear(self) -> None:
         with self._lock:

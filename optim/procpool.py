@@ -44,7 +44,7 @@ import os
 import signal
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Callable, Hashable, Iterable, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -259,7 +259,8 @@ class SlotPool:
         self._ignore_signals = ignore_signals
         self.time_limit = time_limit
         self._slots = [_Slot(i, self) for i in range(int(workers))]
-        self._queues: OrderedDict[Hashable, deque[SlotTask]] = OrderedDict()
+        #: Each group's queued calls, in serving order (a dict keeps its insertion order).
+        self._queues: dict[Hashable, deque[SlotTask]] = {}
         self._lock = threading.RLock()
         self._closed = False
         self._keys = itertools.count(1)
@@ -311,7 +312,7 @@ class SlotPool:
                 q.popleft()
             if q:
                 task = q.popleft()
-                self._queues.move_to_end(group)  # round robin: this group goes to the back
+                self._queues[group] = self._queues.pop(group)  # round robin: to the back
                 return task
             del self._queues[group]
         return None
@@ -414,8 +415,7 @@ class SlotPool:
             tasks = [SlotTask(group, index + i, fn, tuple(args), limit, key)  # type: ignore[arg-type]
                      for i, ((fn, args), key) in enumerate(zip(calls, keys, strict=True))]
             if group not in self._queues:  # a group not served yet goes first
-                self._queues[group] = deque()
-                self._queues.move_to_end(group, last=False)
+                self._queues = {group: deque(), **self._queues}
             self._queues[group].extend(tasks)
         self._dispatch()
         return tasks

@@ -25,6 +25,7 @@ from __future__ import annotations
 import pickle
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -75,7 +76,7 @@ def save_checkpoint(
         "format": CHECKPOINT_FORMAT,
         **meta,
         "optimizer": opt.dumps(),
-        "history": [h.to_dict() for h in opt.history],
+        "history": [asdict(h) for h in opt.history],
         "wall_seconds": float(wall_seconds),
     }
     atomic_write_bytes(path, pickle.dumps(payload, protocol=4))
@@ -223,7 +224,7 @@ def result_of(
         stop_rule=stop_rule,
         wall_seconds=wall_seconds,
         seed=seed,
-        history=[h.to_dict() for h in opt.history],
+        history=[asdict(h) for h in opt.history],
         basis_id=space.basis_id,
         reduced_params=None if space.basis is None else final.best_x,
         fall_direction=final.best.fall_direction,

@@ -40,7 +40,7 @@ def job_out(job: Any, request: Request, cmrt_id: str | None = None) -> dict[str,
         "evaluations": job.evaluations,
         "iterations": job.iterations,
         "cancel_requested": job.cancel_requested,
-        "start": job.start,
+        "start": None if job.start is None else job.start.to_json(),
         "cmrt_id": cmrt_id,
         "links": {
             "generations": url_for(request, "job_generations", job_id=job.id),

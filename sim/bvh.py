@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cmrt.specfile import SpecReadError, read_bytes
 from sim.errors import SimError
 
 #: Largest BVH file read (bytes): a two-minute clip of a 60-joint skeleton at 120 Hz is ~30 MB.
@@ -173,14 +174,9 @@ def read_bvh(path: str | Path) -> BvhClip:
     """Read a BVH file (module docstring); BvhError for any problem."""
     p = Path(path)
     try:
-        with p.open("rb") as f:
-            raw = f.read(MAX_BVH_BYTES + 1)
-    except FileNotFoundError:
-        raise BvhError(f"{p}: no such file") from None
-    except OSError as err:
-        raise BvhError(f"{p}: cannot read ({err.strerror or err})") from None
-    if len(raw) > MAX_BVH_BYTES:
-        raise BvhError(f"{p}: larger than {MAX_BVH_BYTES} bytes")
+        raw = read_bytes(p, "the BVH file", MAX_BVH_BYTES)
+    except SpecReadError as err:
+        raise BvhError(str(err)) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:

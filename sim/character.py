@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 import sim.character_rules as rules
+from cmrt.specfile import SpecReadError, read_document
 from sim.errors import CharacterError
 
 DATA_DIR = Path(__file__).parent / "data"
@@ -424,7 +424,7 @@ def shipped_definition(name: str) -> dict[str, Any]:
     """The definition (the file's mapping) of shipped character `name` (shipped_characters)."""
     if name not in shipped_characters():
         raise CharacterError(f"unknown character {name!r}")
-    return yaml.safe_load((DATA_DIR / f"{name}.yaml").read_text())
+    return _read_definition(DATA_DIR / f"{name}.yaml", name)
 
 
 def definition_reference(data: Any) -> tuple[float, float] | None:
@@ -443,9 +443,9 @@ def character_reference(model: str) -> tuple[float, float] | None:
     if not isinstance(model, str) or not model.replace("_", "").isalnum():
         return None
     try:
-        ref = yaml.safe_load((DATA_DIR / f"{model}.yaml").read_text()).get("reference")
+        ref = _read_definition(DATA_DIR / f"{model}.yaml", model).get("reference")
         return _positive(ref["height"], "height"), _positive(ref["mass"], "mass")
-    except (OSError, yaml.YAMLError, AttributeError, KeyError, TypeError, CharacterError):
+    except (AttributeError, KeyError, TypeError, CharacterError):
         return None
 
 
@@ -454,10 +454,12 @@ def load_character(model: str = DEFAULT_CHARACTER, height: float | None = None,
                    mass: float | None = None) -> Character:
     """Load `sim/data/<model>.yaml` (or a path), scaled to `height` m and `mass` kg."""
     path = Path(model) if model.endswith((".yaml", ".yml")) else DATA_DIR / f"{model}.yaml"
+    return parse_character(_read_definition(path, model), height, mass, name=path.stem)
+
+
+def _read_definition(path: Path, model: str) -> Any:
+    """The document of a character file (`cmrt.specfile.read_document`: bounded, one error)."""
     try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as err:
-        raise CharacterError(f"character {model!r}: cannot read {path} ({err.strerror})") from None
-    except yaml.YAMLError as err:
-        raise CharacterError(f"character {model!r}: not valid YAML: {err}") from None
-    return parse_character(data, height, mass, name=path.stem)
+        return read_document(path, f"character {model!r}")
+    except SpecReadError as err:
+        raise CharacterError(str(err)) from None

@@ -40,8 +40,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from cmrt.specfile import SpecReadError, read_document
 from sim.bvh import BvhClip, read_bvh
 from sim.character import DATA_DIR, DEFAULT_CHARACTER, Character, load_character
 from sim.errors import SimError
@@ -154,19 +154,11 @@ def _end(value: Any, bad: Any, where: str) -> tuple[str, ...]:
 
 def load_map(path: str | Path) -> SkeletonMap:
     """A map file (YAML), bounded in size."""
-    p = Path(path)
     try:
-        with p.open("rb") as f:
-            raw = f.read(MAX_MAP_BYTES + 1)
-    except OSError as err:
-        raise MotionImportError(f"{p}: cannot read the map ({err.strerror or err})") from None
-    if len(raw) > MAX_MAP_BYTES:
-        raise MotionImportError(f"{p}: a map file is at most {MAX_MAP_BYTES} bytes")
-    try:
-        data = yaml.safe_load(raw.decode("utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as err:
-        raise MotionImportError(f"{p}: not valid YAML: {str(err).splitlines()[0]}") from None
-    return parse_map(data, str(p))
+        data = read_document(path, "the map", MAX_MAP_BYTES)
+    except SpecReadError as err:
+        raise MotionImportError(str(err)) from None
+    return parse_map(data, str(path))
 
 
 def builtin_maps() -> list[SkeletonMap]:
@@ -512,7 +504,6 @@ def _character(character: str) -> tuple[Character, dict[str, Any], dict[str, Any
     `{file: PATH}`) and, for a file, the block as the command line inlines it."""
     if Path(character).suffix not in CHARACTER_FILE_SUFFIXES:
         return load_character(character), {"model": character}, None
-    from cmrt.specfile import SpecReadError, read_document
     from sim.spec import CharacterRef
 
     try:

@@ -13,14 +13,15 @@ The `task` block is a discriminated union on `type` over the registry `sim.tasks
     task: {type: push, force: 100, direction: forward}
     task: {type: pose_change, target: {waist: -90}}
 
-The pre-registry form (`task: push` with a separate `push:` / `pose_change:` / `motions:`
-block) is still read and converted to it; `model_dump()` always gives the new form.
+A task given by its name alone (`task: push`, the form before the registry) is refused with
+a message saying what to send instead.
 
 The `controller` block is a discriminated union on `type` over the registry
 `sim.controllers.registry.CONTROLLER_TYPES` (contract in `sim.controllers.config`):
 
     controller: {type: momentum, k_l: 30}    # the default type; its gains override the defaults
-    controller: {k_l: 30}                    # the legacy flat form: momentum overrides
+
+A block without its `type` (the old flat dict of momentum gains) is refused the same way.
 
 Units: seconds, metres, newtons, kilograms; joint angles in specs are in degrees.
 """
@@ -84,27 +85,20 @@ MIN_COP_BOX_WIDTH = 0.005
 _Strict = StrictModel
 #: The `task` field: one of the registered task types, chosen by its `type`.
 TaskBlock = Annotated[Union[tuple(TASK_TYPES.values())], Field(discriminator="type")]  # noqa: UP007
-#: Blocks of the pre-registry form, by task name.
-_LEGACY_BLOCKS = {"push": "push", "pose_change": "pose_change", "sequence": "motions"}
 
 
 def _controller_tag(value: Any) -> str | None:
-    """The `controller` block's type: its `type`, or the default type when it has none (the
-    legacy flat dict of momentum overrides)."""
-    if isinstance(value, dict):
-        tag = value.get("type", DEFAULT_CONTROLLER)
-    else:
-        tag = getattr(value, "type", None)
+    """The `controller` block's type: its `type` (None when it has none)."""
+    tag = value.get("type") if isinstance(value, dict) else getattr(value, "type", None)
     return tag if isinstance(tag, str) else None
 
 
 #: The `controller` field: one of the registered controller types, chosen by its `type`
-#: (default: momentum).
+#: (a spec without the block has the default, momentum).
 ControllerBlock = Annotated[
     Union[tuple(Annotated[c, Tag(k)] for k, c in CONTROLLER_TYPES.items())],  # noqa: UP007
     Discriminator(_controller_tag, custom_error_type="controller_type",
-                  custom_error_message=(f"must be a mapping whose `type` (default "
-                                        f"{DEFAULT_CONTROLLER}) is one of "
+                  custom_error_message=(f"must be a mapping whose `type` is one of "
                                         f"{', '.join(CONTROLLER_TYPES)}"))]
 
 
@@ -312,27 +306,14 @@ class TaskSpec(_Strict):
 
     @model_validator(mode="before")
     @classmethod
-    def _legacy_task(cls, data: Any) -> Any:
-        """`task: push` + `push: {...}` (the pre-registry form) -> `task: {type: push, ...}`."""
-        if not isinstance(data, dict) or not isinstance(data.get("task"), str):
-            return data
-        d = dict(data)
-        kind = d["task"]
-        task: dict[str, Any] = {"type": kind}
-        for block in set(_LEGACY_BLOCKS.values()):
-            if block in d and d[block] is None:
-                del d[block]
-        block = _LEGACY_BLOCKS.get(kind)
-        if block is not None and block in d:
-            value = d.pop(block)
-            if block == "motions":
-                task["motions"] = value
-            elif isinstance(value, dict):
-                task.update(value)
-            else:
-                task[block] = value  # reported as an unknown field of the task
-        d["task"] = task
-        return d
+    def _task_by_name(cls, data: Any) -> Any:
+        """Refuse `task: push` (+ a `push:` block), the form before the registry, saying what
+        to send instead."""
+        if isinstance(data, dict) and isinstance(data.get("task"), str):
+            raise ValueError(f"task: must be a mapping with its type, e.g. {{type: "
+                             f"{data['task']}, ...}} holding the task's fields; a task named "
+                             f"alone (with a separate block of its fields) is no longer read")
+        return data
 
     @model_validator(mode="after")
     def _cross_field(self) -> TaskSpec:
@@ -458,7 +439,11 @@ def format_error(err: ValidationError) -> str:
         if e["type"] == "controller_type":
             loc = [*loc, "type"]
             tag = e["input"].get("type") if isinstance(e["input"], dict) else None
-            if isinstance(tag, str):
+            if isinstance(e["input"], dict) and "type" not in e["input"]:
+                msg = (f"required: send {{type: {DEFAULT_CONTROLLER}, ...}} with the gains "
+                       f"(one of {', '.join(CONTROLLER_TYPES)}); a block without its type is "
+                       f"no longer read")
+            elif isinstance(tag, str):
                 msg = (f"unknown controller type {tag!r}; controller types are "
                        f"{', '.join(CONTROLLER_TYPES)}")
         elif e["type"] == "union_tag_invalid":

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import abc
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 from sqlalchemy import func, select, update
@@ -22,7 +22,9 @@ from store.records import (
     FAMILY_RUNNING,
     FAMILY_TERMINAL,
     FamilyRecord,
+    FamilyScan,
     JobRecord,
+    JobStart,
 )
 from store.sql import SqlBase, _job_record, _json
 
@@ -51,18 +53,23 @@ class FamilyRepository(abc.ABC):
         """Families not finished yet, oldest first: what a driver advances."""
 
     @abc.abstractmethod
-    def add_family_run(self, family_id: str, run_id: str, job: Mapping[str, Any]) -> JobRecord:
-        """The job of run `run_id`: created from `job` (create_job's arguments, `spec` first)
-        unless the run has one already, in which case that one is returned (idempotent).
-        Creating the job and linking it is one transaction."""
+    def add_family_run(self, family_id: str, run_id: str, spec: Mapping[str, Any], *,
+                       name: str, family: str, task: str, seed: int | None = None,
+                       basis_id: str | None = None, start: JobStart | None = None,
+                       spec_hash: str | None = None) -> JobRecord:
+        """The job of run `run_id`: created as `create_job` would (the same arguments) unless
+        the run has one already, in which case that one is returned (idempotent). Creating
+        the job and linking it is one transaction."""
 
     @abc.abstractmethod
     def family_jobs(self, family_id: str) -> dict[str, JobRecord]:
         """run id -> the job of every run started so far; raises NotFound."""
 
     @abc.abstractmethod
-    def family_results(self, family_id: str, run_ids: Sequence[str]) -> dict[str, Any]:
-        """run id -> the result document of each of those runs' jobs that has one."""
+    def family_scan(self, family_id: str, known: Collection[str] = ()) -> FamilyScan:
+        """The family, its runs' jobs, the result documents of its finished runs but those
+        in `known` (the ones the caller has), and its probes: one transaction, what a
+        family driver reads at a step. Raises NotFound."""
 
     @abc.abstractmethod
     def set_family_probes(self, family_id: str, probes: Any) -> None:
@@ -142,17 +149,15 @@ class SqlFamilies(SqlBase, FamilyRepository):
             runs = self._runs(s, [r.id for r in rows])
             return [_family_record(r, runs[r.id]) for r in rows]
 
-    def add_family_run(self, family_id, run_id, job):
+    def add_family_run(self, family_id, run_id, spec, **job):
         existing = self._run_job(family_id, run_id)
         if existing is not None:
             return existing
-        args = dict(job)
-        spec = args.pop("spec")
         try:
             with self._write() as s:
                 if s.get(FamilyRow, family_id) is None:
                     raise NotFound(f"family {family_id!a} not found")
-                rec = self._create_job_in(s, spec, **args)
+                rec = self._create_job_in(s, spec, **job)
                 s.add(FamilyRunRow(family_id=family_id, run_id=run_id, job_id=rec.id))
                 s.flush()
                 return rec
@@ -179,15 +184,23 @@ class SqlFamilies(SqlBase, FamilyRepository):
                              .where(FamilyRunRow.family_id == family_id)).all()
             return {rid: _job_record(job) for rid, job in rows}
 
-    def family_results(self, family_id, run_ids):
-        if not run_ids:
-            return {}
+    def family_scan(self, family_id, known=()):
         with self._read() as s:
-            rows = s.execute(select(FamilyRunRow.run_id, JobRow.result)
-                             .join(JobRow, FamilyRunRow.job_id == JobRow.id)
-                             .where(FamilyRunRow.family_id == family_id,
-                                    FamilyRunRow.run_id.in_(list(run_ids)))).all()
-            return {rid: res for rid, res in rows if res is not None}
+            fam = s.execute(select(FamilyRow, FamilyRow.probes).where(FamilyRow.id == family_id)
+                            ).one_or_none()
+            if fam is None:
+                raise NotFound(f"family {family_id!a} not found")
+            jobs = {rid: _job_record(job) for rid, job in s.execute(
+                select(FamilyRunRow.run_id, JobRow).join(JobRow, FamilyRunRow.job_id == JobRow.id)
+                .where(FamilyRunRow.family_id == family_id))}
+            want = [rid for rid, j in jobs.items() if j.terminal and rid not in known]
+            results = {} if not want else {rid: res for rid, res in s.execute(
+                select(FamilyRunRow.run_id, JobRow.result)
+                .join(JobRow, FamilyRunRow.job_id == JobRow.id)
+                .where(FamilyRunRow.family_id == family_id, FamilyRunRow.run_id.in_(want)))
+                if res is not None}
+            record = _family_record(fam[0], {rid: j.id for rid, j in jobs.items()})
+            return FamilyScan(record, jobs, results, fam[1])
 
     def set_family_probes(self, family_id, probes):
         doc = _json(probes, "probes")

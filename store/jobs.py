@@ -22,6 +22,7 @@ from store.records import (
     TERMINAL_STATUSES,
     TRANSITIONS,
     JobRecord,
+    JobStart,
 )
 from store.sql import (
     SqlBase,
@@ -49,14 +50,14 @@ class JobRepository(abc.ABC):
         seed: int | None = None,
         workers: int = 1,
         basis_id: str | None = None,
-        start: Mapping[str, Any] | None = None,
+        start: JobStart | None = None,
         spec_hash: str | None = None,
     ) -> JobRecord:
         """Store a new job in status `queued` and return it (a fresh uuid4 string id).
 
         `spec` is the JSON form of the TaskSpec (`sim.spec.CanonicalSpec.document`) and
         `spec_hash` the hash of its canonical text (computed here when not given). `start`:
-        where its search starts, {"from": what, "x0": full params} (None: the flat spline).
+        where its search starts (None: the flat spline).
         Raises Conflict if `basis_id` names no stored basis.
         """
 
@@ -170,7 +171,8 @@ class SqlJobs(SqlBase, JobRepository):
             spec_hash=spec_hash or document_hash(doc), seed=seed, workers=int(workers),
             status=QUEUED,
             basis_id=basis_id, created_at=self._clock(), evaluations=0, iterations=0,
-            cancel_requested=False, start=None if start is None else _json(dict(start), "start"),
+            cancel_requested=False,
+            start=None if start is None else _json(start.to_json(), "start"),
         )  # fmt: skip
         s.add(job)
         s.flush()

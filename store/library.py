@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import abc
 import math
-import threading
 import uuid
-from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from sqlalchemy import Text, and_, bindparam, cast, func, select
 from sqlalchemy.exc import IntegrityError
 
+from cmrt.lru import LRU
 from store.errors import Conflict, NotFound
 from store.models import BasisRow, CmrtParameterRow, CmrtRow, CmrtVerificationRow, JobRow
 from store.records import (
@@ -175,39 +174,13 @@ RECORDS_KEPT = 1024
 FAMILIES_KEPT = 512
 
 
-class _Kept:
-    """At most `size` values by key, least recently used dropped first (thread-safe: the
-    service reads on several threads). `SqlLibrary` keeps two: records by id, and families'
-    keys with the stamp they were read at."""
-
-    def __init__(self, size: int) -> None:
-        self.size = size
-        self.lock = threading.Lock()
-        self.values: OrderedDict[str, Any] = OrderedDict()
-
-    def get(self, key: str) -> Any:
-        with self.lock:
-            value = self.values.get(key)
-            if value is not None:
-                self.values.move_to_end(key)
-            return value
-
-    def put(self, items: Iterable[tuple[str, Any]]) -> None:
-        with self.lock:
-            for key, value in items:
-                self.values[key] = value
-                self.values.move_to_end(key)
-            while len(self.values) > self.size:
-                self.values.popitem(last=False)
-
-
 class SqlLibrary(SqlBase, LibraryRepository):
-    def _kept(self, what: str, size: int) -> _Kept:
+    def _kept(self, what: str, size: int) -> LRU[str, Any]:
         """This repository's `what` cache (made on first use: SqlBase.__init__ is the
-        repository's one __init__)."""
+        repository's one __init__); thread-safe, as the service reads on several threads."""
         kept = self.__dict__.get(what)
         if kept is None:
-            kept = self.__dict__.setdefault(what, _Kept(size))
+            kept = self.__dict__.setdefault(what, LRU(size))
         return kept
 
     def _records(self, ids: Sequence[str]) -> dict[str, CmrtRecord]:
@@ -225,7 +198,8 @@ class SqlLibrary(SqlBase, LibraryRepository):
             with self._read_core() as conn:
                 got = [CmrtRecord(**row._mapping)
                        for row in conn.execute(_RECORDS, {"ids": missing})]
-            kept.put((r.id, r) for r in got)
+            for r in got:
+                kept.put(r.id, r)
             out.update((r.id, r) for r in got)
         return out
 
@@ -334,7 +308,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
             for (cid, tp, obj, knots, values, spec, created, prep, dec, character, fam, without,
                  winner, fell, job) in rows
         ]
-        kept.put([(family, (stamp, keys))])
+        kept.put(family, (stamp, keys))
         return list(keys)
 
     def cmrt_families(self):

@@ -41,6 +41,39 @@ EVAL_STATUSES: tuple[str, ...] = (PENDING, DONE, EVAL_FAILED)
 
 
 @dataclass(frozen=True)
+class JobStart:
+    """Where a job's search starts (None on a job: the flat spline): `origin` says what it
+    came from (the JSON form's "from"), `x0` the full parameters, `sigma0` a smaller initial
+    step (box units) than the spec's, `cmrts` the library CMRTs it was made of, `kind`
+    "refine" for a refinement. Its JSON form (`to_json`, `from_json`) is what the store keeps
+    and the API shows."""
+
+    origin: str
+    x0: tuple[float, ...]
+    sigma0: float | None = None
+    cmrts: tuple[str, ...] | None = None
+    kind: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON form: "kind" (if any), "from", "x0", then "sigma0" and "cmrts" if set."""
+        doc: dict[str, Any] = {} if self.kind is None else {"kind": self.kind}
+        doc.update({"from": self.origin, "x0": [float(v) for v in self.x0]})
+        if self.sigma0 is not None:
+            doc["sigma0"] = float(self.sigma0)
+        if self.cmrts is not None:
+            doc["cmrts"] = list(self.cmrts)
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any]) -> JobStart:
+        """The record of a JSON form (`to_json`'s)."""
+        cmrts = doc.get("cmrts")
+        return cls(origin=doc["from"], x0=tuple(float(v) for v in doc["x0"]),
+                   sigma0=None if doc.get("sigma0") is None else float(doc["sigma0"]),
+                   cmrts=None if cmrts is None else tuple(cmrts), kind=doc.get("kind"))
+
+
+@dataclass(frozen=True)
 class JobRecord:
     id: str
     name: str
@@ -70,8 +103,8 @@ class JobRecord:
     driver_owner: str | None
     lease_expires_at: datetime | None
     heartbeat_at: datetime | None
-    #: Where the search started: {"from": what, "x0": full params}; None: the flat spline.
-    start: dict[str, Any] | None = None
+    #: Where the search started; None: the flat spline.
+    start: JobStart | None = None
 
     @property
     def terminal(self) -> bool:
@@ -227,6 +260,19 @@ class FamilyRecord:
     @property
     def terminal(self) -> bool:
         return self.status in FAMILY_TERMINAL
+
+
+@dataclass(frozen=True)
+class FamilyScan:
+    """What a family driver reads of a family at one step, in one store call
+    (`FamilyRepository.family_scan`): the family, the job of every run started so far (run
+    id -> job), the result documents of the finished runs asked for (run id -> document),
+    the probes' outcomes (JSON data; None before they are evaluated)."""
+
+    family: FamilyRecord
+    jobs: dict[str, JobRecord]
+    results: dict[str, Any]
+    probes: Any | None
 
 
 @dataclass(frozen=True, slots=True)  # no __dict__: a library keeps thousands (store.library)

@@ -23,6 +23,7 @@ from store.records import (
     EvaluationRecord,
     GenerationRecord,
     JobRecord,
+    JobStart,
 )
 
 Clock = Callable[[], datetime]
@@ -69,7 +70,8 @@ def _job_record(j: JobRow) -> JobRecord:
         finished_at=j.finished_at, best_objective=j.best_objective, best_params=j.best_params,
         evaluations=j.evaluations, iterations=j.iterations,
         cancel_requested=bool(j.cancel_requested), driver_owner=j.driver_owner,
-        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at, start=j.start,
+        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at,
+        start=None if j.start is None else JobStart.from_json(j.start),
     )  # fmt: skip
 
 

@@ -68,3 +68,11 @@ def test_test_modules_have_unique_names():
             seen.setdefault(path.name, []).append(str(path.relative_to(ROOT)))
     assert len(seen) > 50  # the scan saw the suite
     assert {n: w for n, w in seen.items() if len(w) > 1} == {}
+
+
+def test_one_cache_implementation():
+    """Every process-local cache is a `cmrt.lru.LRU`: the product writes least-recently-used
+    bookkeeping (and its lock) once."""
+    found = sorted(str(path.relative_to(ROOT)) for package in PACKAGES[:-1]
+                   for path in (ROOT / package).rglob("*.py") if "move_to_end" in path.read_text())
+    assert found == ["cmrt/lru.py"]

@@ -32,7 +32,6 @@ from __future__ import annotations
 import logging
 import socket
 import time
-from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -40,6 +39,7 @@ import numpy as np
 from sqlalchemy.exc import DBAPIError, OperationalError
 
 from application.jobs import job_spec
+from cmrt.lru import LRU
 from optim.errors import EvaluationError
 from optim.executors import EvalOutcome, evaluate_one
 from optim.objective import SPECS
@@ -51,7 +51,6 @@ from worker.fingerprints import process_fingerprint
 
 log = logging.getLogger(__name__)
 
-ObjectiveFactory = Callable[[TaskSpec], Callable[[np.ndarray], Any]]
 T = TypeVar("T")
 #: How `run_candidates` gets claimed candidates evaluated elsewhere (a process pool):
 #: `pool_run(objective, params, on_result)` calls `on_result(position, outcome | EvaluationError)`
@@ -104,24 +103,16 @@ def attempts_exhausted_message(generation: int, index: int, attempts: int) -> st
 class JobSpecs:
     """Job id -> the hash of its spec (a job's spec never changes), over the process's one
     spec cache (`optim.objective.SPECS`, which holds the typed specs, their simulators and
-    objectives): the store is read once per job, the spec parsed once per spec.
+    objectives): the store is read once per job, the spec parsed once per spec."""
 
-    factory: builds a job's objective from its typed spec (None: `SimObjective`, the
-    simulation); made once per spec and factory."""
-
-    def __init__(self, factory: ObjectiveFactory | None = None, size: int = 1024) -> None:
-        self.factory = factory
-        self.size = size
-        self._hashes: OrderedDict[str, str] = OrderedDict()
+    def __init__(self, size: int = 1024) -> None:
+        self._hashes: LRU[str, str] = LRU(size)  # thread-safe: the driver threads share one
 
     def get(self, repo: Repository, job_id: str) -> tuple[TaskSpec, Any]:
         """The job's (typed spec, objective)."""
         canonical = job_spec(repo, job_id, self._hashes.get(job_id))
-        self._hashes[job_id] = canonical.hash
-        self._hashes.move_to_end(job_id)
-        while len(self._hashes) > self.size:
-            self._hashes.popitem(last=False)
-        return canonical.spec, SPECS.objective(canonical, self.factory)
+        self._hashes.put(job_id, canonical.hash)
+        return canonical.spec, SPECS.objective(canonical)
 
 
 #: EvalOutcome fields stored in an evaluation row's `details` when they are not None.
@@ -155,7 +146,7 @@ def open_worker_repository(url: str) -> Repository:
     """The repository of an evaluation worker process (no schema migration: the API does it).
 
     No ping before each use of a pooled connection (it would be 2 of the 4 database round
-    trips per candidate): `run_candidate` retries its store calls on a fresh connection when the
+    trips per candidate): `run_candidates` retries its store calls on a fresh connection when the
     database connection was lost (`with_reconnect`).
     """
     from store import SqlRepository, make_engine
@@ -163,7 +154,7 @@ def open_worker_repository(url: str) -> Repository:
     return SqlRepository(make_engine(url, pool_pre_ping=False))
 
 
-#: How long a store call of `run_candidate` is retried while the database connection is lost.
+#: How long a store call of `run_candidates` is retried while the database connection is lost.
 RECONNECT_SECONDS = 30.0
 
 
@@ -174,7 +165,7 @@ def with_reconnect(call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
     OperationalError; SQLAlchemy has already discarded the dead connections, so the next try
     opens a fresh one).
 
-    Safe for the calls of `run_candidate`: a read, a first-result-wins write, or a claim, which
+    Safe for the calls of `run_candidates`: a read, a first-result-wins write, or a claim, which
     repeated after a commit whose reply was lost counts one attempt too many (erring toward
     failing a candidate early, never toward looping).
     """
@@ -316,17 +307,3 @@ class CandidateRun:
             raise
 
 
-def run_candidate(
-    repo: Repository,
-    job_id: str,
-    generation: int,
-    index: int,
-    *,
-    max_attempts: int,
-    cache: JobSpecs,
-    worker_name: str | None = None,
-    notify: Callable[[str, int, int], Any] | None = None,
-) -> dict[str, Any]:
-    """`run_candidates` of one candidate, in this process."""
-    return run_candidates(repo, job_id, generation, [index], max_attempts=max_attempts,
-                          cache=cache, worker_name=worker_name, notify=notify)[0]

@@ -56,7 +56,7 @@ from optim.robust import cut_allowed
 from optim.run import result_of
 from sim.errors import SpecError
 from sim.spec import TaskSpec
-from store import NotFound, Repository, StoreError
+from store import JobStart, NotFound, Repository, StoreError
 from store.records import (
     CANCELLED,
     CONVERGED,
@@ -243,12 +243,12 @@ class StoreRunState:
             d.on_generation(generation)
 
 
-def _with_start_sigma(spec: TaskSpec, start: dict[str, Any] | None) -> TaskSpec:
+def _with_start_sigma(spec: TaskSpec, start: JobStart | None) -> TaskSpec:
     """The spec whose optimizer starts the job: a start may set a smaller initial step
     (`sigma0`, box units) than the spec's, as a start from the library does."""
-    if not start or start.get("sigma0") is None:
+    if start is None or start.sigma0 is None:
         return spec
-    opt = spec.optimize.model_copy(update={"sigma0": float(start["sigma0"])})
+    opt = spec.optimize.model_copy(update={"sigma0": start.sigma0})
     return spec.model_copy(update={"optimize": opt})
 
 
@@ -343,7 +343,7 @@ class JobDriver:
         return status
 
     def _space(self, job: Any, spec: TaskSpec) -> SearchSpace:
-        x0 = None if not job.start else job.start.get("x0")
+        x0 = None if job.start is None else job.start.x0
         if job.basis_id is None:
             try:
                 return SearchSpace.of(spec, None, x0)

@@ -30,15 +30,12 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from cmrt.settings import Settings
-from optim.errors import EvaluationError
-from optim.executors import Executor as BatchExecutor
 from store import EvaluationRecord, Repository
 from store.records import DONE, PENDING
 from worker.candidates import (
     JobCancelledError,
     JobFailedError,
     JobSpecs,
-    ObjectiveFactory,
     run_candidates,
 )
 from worker.fairpool import POLL_S, FairPool
@@ -80,49 +77,16 @@ class GenerationExecutor(ABC):
         pass
 
 
-class _BatchPool:
-    """A `FairPool` stand-in over an optim `Executor` (tests: a serial executor, one batch per
-    call; a failed batch counts as every candidate's process dying)."""
-
-    def __init__(self, executor: BatchExecutor) -> None:
-        self.executor = executor
-
-    @property
-    def workers(self) -> int:
-        return self.executor.workers
-
-    def run(self, job, fn, batch, check, on_result, *, cut_margin=None, done=()) -> None:
-        check()
-        try:  # the executor's bound knows only the batch: no cut beside stored values
-            outs: list[Any] = self.executor.map(fn, list(batch),
-                                                cut_margin=None if done else cut_margin)
-        except EvaluationError as err:
-            outs = [err] * len(batch)
-        for i, out in enumerate(outs):
-            on_result(i, out)
-
-    def close(self) -> None:
-        self.executor.close()
-
-
 class LocalPoolExecutor(GenerationExecutor):
     """Evaluates in this process' `FairPool` (fair share between jobs; a cancelled or stopped
     job's running candidates are dropped within `fairpool.POLL_S`)."""
 
     kind = "local-pool"
 
-    def __init__(
-        self,
-        config: Settings,
-        *,
-        pool: BatchExecutor | FairPool | None = None,
-        objective_factory: ObjectiveFactory | None = None,
-    ) -> None:
+    def __init__(self, config: Settings) -> None:
         self.config = config
-        if pool is None:
-            pool = FairPool(config.workers, time_limit=config.eval_time_limit)
-        self.pool: Any = pool if isinstance(pool, FairPool) else _BatchPool(pool)
-        self.cache = JobSpecs(objective_factory)
+        self.pool = FairPool(config.workers, time_limit=config.eval_time_limit)
+        self.cache = JobSpecs()
         self.node = f"{socket.gethostname()}/local-pool"
 
     def evaluate(self, repo, job_id, generation, population, check, cut_margin=None):

@@ -11,15 +11,17 @@ every unfinished family: it reads the family's state from the store and asks
         with the family, or once the driver's probe thread has them (then kept)
     Cancel -> cancel every unfinished job of the family; `cancelled` once none runs
     Fail -> cancel the others, the family fails naming the run and its job
-    StartRun -> its job, created at most once (`add_family_run`): the run's spec and seed, its
-        start point (`start`: {"from": ..., "x0": ...}) and, for a reduced run, the
-        leave-one-out basis stored as a PCA basis; the job is handed to `submit` so a driver
-        starts at once
+    StartRun -> its job, submitted through `application.jobs.submit_job` and created at most
+        once (`add_family_run`): the run's spec and seed, its start point (a `JobStart`) and,
+        for a reduced run, the leave-one-out basis stored as a PCA basis; the job is handed
+        to `submit` so a driver starts at once
     EvaluateProbes -> handed to a thread of the driver's own, evaluated there in a process of
         their own; a later step picks their outcomes up (the step never waits for them, so no
         other family's step waits either)
-    Finish -> the family's document (`optim.family.report.family_report`, with the family's
-        id and jobs) kept as its report; `done`
+    Finish -> the family's document, made now (`optim.family.report.family_report`, with the
+        family's id and jobs), kept as its report; `done`
+
+A step reads the family's state in one store call (`family_scan`).
 
 The same plan, starts, seeds and stopping rules as `cmrt family run` (optim.family_run), and
 a job's result document is the command line's (`optim.run.result_of`), so a family run here
@@ -40,44 +42,42 @@ from typing import Any
 import numpy as np
 
 from application.bases import store_basis
+from application.errors import ApplicationError
 from application.families import family_spec
+from application.jobs import submit_job
+from cmrt.settings import Settings
 from optim.errors import EvaluationError, OptimError
 from optim.executors import Executor, PoolExecutor
 from optim.family import machine
 from optim.family.plan import PlannedRun, RunStart
-from optim.family.spec import FamilyError, FamilySpec
-from optim.family_run import default_objective
-from optim.objective import SPECS
+from optim.family.report import family_report
+from optim.family.spec import FamilyError, FamilySpec, member_objective
 from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
 from sim.spec import canonical_spec
-from store import Repository
-from store.records import CANCELLED, FAILED, FAMILY_DONE
+from store import FamilyScan, Repository
+from store.records import CANCELLED, FAILED, FAMILY_DONE, JobStart
 
 log = logging.getLogger(__name__)
-
-ObjectiveFor = Callable[[FamilySpec, float], Callable[..., Any]]
 
 
 class FamilyDriver:
     """Advances families (see module docstring). `submit(job_id)` starts a job's driver now
-    (the scan would find it later anyway); `probe_executor` evaluates the probes (default: a
-    process of its own, so a simulation never holds this process' interpreter), called from a
-    thread of the driver's own so that `advance` never waits for a simulation."""
+    (the scan would find it later anyway); the probes are evaluated in a process of the
+    driver's own (a simulation never holds this process' interpreter), called from a thread of
+    the driver's own so that `advance` never waits for a simulation. `settings`:
+    the server's, which the runs' jobs are admitted under as any job is."""
 
     def __init__(
         self,
         repo: Repository,
+        settings: Settings,
         *,
         submit: Callable[[str], Any] | None = None,
-        probe_executor: Executor | None = None,
-        objective_for: ObjectiveFor = default_objective,
     ) -> None:
-        self.repo = repo
+        self.repo, self.settings = repo, settings
         self.submit = submit or (lambda _job_id: None)
-        self._probe_executor = probe_executor
-        self._own_executor = probe_executor is None
-        self.objective_for = objective_for
+        self._probe_executor: Executor | None = None
         self._lock = threading.Lock()
         #: Parsed results of finished runs, per family (a finished job's result never changes).
         self._results: dict[str, dict[str, OptimizationResult]] = {}
@@ -88,7 +88,7 @@ class FamilyDriver:
 
     def close(self) -> None:
         """Stop evaluating probes (an evaluation under way ends with its process; a later
-        driver evaluates them again) and release the probe executor if it is the driver's."""
+        driver evaluates them again) and release the probes' process."""
         with self._lock:
             self._closed = True
             for fut in self._probing.values():
@@ -98,7 +98,7 @@ class FamilyDriver:
         if thread is not None:
             thread.shutdown(wait=False, cancel_futures=True)
         with self._lock:
-            if self._own_executor and self._probe_executor is not None:
+            if self._probe_executor is not None:
                 self._probe_executor.close()
                 self._probe_executor = None
 
@@ -114,10 +114,11 @@ class FamilyDriver:
         """One step of the family (see module docstring); returns its status after it. A
         domain error of the plan's arithmetic (a basis or an interpolation that cannot be
         made from these members) or of the probes' evaluation fails the family with its
-        message: the same members would give it again at every step."""
+        message: the same members would give it again at every step; so does a run's job
+        the application refuses."""
         try:
             return self._advance(family_id)
-        except OptimError as err:
+        except (OptimError, ApplicationError) as err:
             log.error("family %s: %s", family_id, err)
             with self._lock:
                 self._forget(family_id)
@@ -126,7 +127,8 @@ class FamilyDriver:
 
     def _advance(self, family_id: str) -> str:
         with self._lock:  # one step at a time in this process; other processes may race
-            fam = self.repo.get_family(family_id)
+            scan = self.repo.family_scan(family_id, self._results.get(family_id, {}).keys())
+            fam = scan.family
             if fam.terminal:
                 self._forget(family_id)
                 return fam.status
@@ -135,24 +137,27 @@ class FamilyDriver:
             except FamilyError as err:
                 self._forget(family_id)
                 return self.repo.finish_family(family_id, FAILED, error=str(err)).status
-            jobs = self.repo.family_jobs(family_id)
-            state = self._state(family_id, fam.cancel_requested, jobs)
+            state = self._state(family_id, scan)
             for action in machine.next_actions(fs, state):
-                status = self._carry_out(family_id, fs, jobs, state, action)
+                status = self._carry_out(family_id, fs, scan.jobs, state, action)
                 if status is not None:
                     return status
             return fam.status
 
-    def _state(self, family_id: str, cancel_requested: bool, jobs: dict[str, Any]
-               ) -> machine.FamilyState:
+    def _state(self, family_id: str, scan: FamilyScan) -> machine.FamilyState:
         """The family's state from its jobs, their result documents and its probes."""
+        jobs, cancel_requested = scan.jobs, scan.family.cancel_requested
         failed = {rid: job.error or job.status for rid, job in jobs.items()
                   if job.status in (FAILED, CANCELLED)}
-        if cancel_requested or failed:  # it ends now: its results and probes are not read
+        if cancel_requested or failed:  # it ends now: its results and probes are not used
             return machine.FamilyState(running=frozenset(jobs.keys() - failed.keys()),
                                        failed=failed, cancel_requested=cancel_requested)
-        results = self._finished(family_id, jobs)
-        probes = self._stored_probes(family_id)
+        cache = self._results.setdefault(family_id, {})
+        for rid, doc in scan.results.items():  # a finished job's result never changes
+            cache[rid] = OptimizationResult.from_dict(doc, f"run {rid}")
+        results = dict(cache)
+        probes = None if scan.probes is None else {
+            float(v): EvalOutcome.from_dict(o) for v, o in scan.probes}
         if probes is None:
             probes = self._evaluated_probes(family_id)
         return machine.FamilyState(results, frozenset(jobs.keys() - results.keys()), probes,
@@ -167,7 +172,7 @@ class FamilyDriver:
             self._hand_probes(family_id, fs, action.points)
         elif isinstance(action, machine.Finish):
             self._forget(family_id)
-            report = {**action.report, "family_id": family_id,
+            report = {**family_report(fs, state.results, state.probes), "family_id": family_id,
                       "jobs": {k: j.id for k, j in jobs.items()}}
             return self.repo.finish_family(family_id, FAMILY_DONE, report=report).status
         elif isinstance(action, machine.Fail):
@@ -202,32 +207,15 @@ class FamilyDriver:
             self.repo.request_cancel(j.id)
         return live
 
-    def _finished(self, family_id: str, jobs: dict[str, Any]) -> dict[str, OptimizationResult]:
-        cache = self._results.setdefault(family_id, {})
-        want = [rid for rid, j in jobs.items() if j.terminal and rid not in cache]
-        for rid, doc in self.repo.family_results(family_id, want).items():
-            cache[rid] = OptimizationResult.from_dict(doc, f"run {rid}")
-        return dict(cache)
-
-    def _stored_probes(self, family_id: str) -> dict[float, EvalOutcome] | None:
-        raw = self.repo.family_probes(family_id)
-        if raw is None:
-            return None
-        return {float(v): EvalOutcome.from_dict(o) for v, o in raw}
-
     def _start(self, family_id: str, fs: FamilySpec, run: PlannedRun, st: RunStart,
                results: Mapping[str, OptimizationResult]) -> None:
         basis_id = None if st.basis is None else store_basis(
             self.repo, st.basis, fs.family,
             [f"{family_id}/{rid}" for rid in sorted(results) if rid != run.id])
-        start = None if st.x0 is None else {"from": st.start,
-                                            "x0": [float(v) for v in np.asarray(st.x0)]}
-        canonical = SPECS.put(canonical_spec(st.spec))  # this process' drivers: no parse
-        spec = canonical.spec
-        job = self.repo.add_family_run(family_id, run.id, {
-            "spec": canonical.document, "spec_hash": canonical.hash, "name": spec.name,
-            "family": spec.family_name, "task": spec.task_type, "seed": fs.seed,
-            "basis_id": basis_id, "start": start})
+        start = "cold" if st.x0 is None else JobStart(st.start, tuple(
+            float(v) for v in np.asarray(st.x0)))
+        job, _ = submit_job(self.repo, self.settings, canonical_spec(st.spec), seed=fs.seed,
+                            basis_id=basis_id, start=start, run=(family_id, run.id))
         log.info("family %s: run %s is job %s%s", family_id, run.id, job.id,
                  f" (from {st.start})" if st.start != "flat" else "")
         if not job.terminal:
@@ -259,7 +247,7 @@ class FamilyDriver:
                          points: list[tuple[float, np.ndarray]]) -> dict[float, EvalOutcome]:
         """In the probe thread: each probe's outcome, evaluated through the probe executor."""
         ex = self._probes_executor()
-        return {v: ex.map(self.objective_for(fs, v), [params])[0] for v, params in points}
+        return {v: ex.map(member_objective(fs, v), [params])[0] for v, params in points}
 
 
 __all__ = ["FamilyDriver"]

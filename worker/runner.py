@@ -46,7 +46,7 @@ class JobRunner:
         self.finished: dict[str, str | None] = {}
         #: One read of the cancel flags per tick for all the jobs driven here.
         self.cancels = CancelFlags(repo)
-        self.families = family_driver or FamilyDriver(repo, submit=self.submit)
+        self.families = family_driver or FamilyDriver(repo, config, submit=self.submit)
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:

@@ -15,36 +15,20 @@ the ODE world and the spec is parsed once per process.
 statuses as one short string ("done done"), which the worker logs at INFO: Celery formats the
 return value of every task (`saferepr`) and ships it from the pool process to its parent
 whether or not it is logged, and a list of dicts cost ~0.3 ms per task of that.
-
-A message of a task no longer served (`RETIRED_TASKS`: the single-candidate
-`cmrt.evaluate_candidate` of the drivers before batches) is refused: Celery discards a message of
-an unregistered task, and `_refuse_retired` logs why, naming the message's arguments. Its
-candidates stay pending in the store, and their job's driver sends them again as batches.
 """
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import os
 import threading
 from typing import Any
 
-from celery.signals import task_unknown, worker_process_init
+from celery.signals import worker_process_init
 
 from cmrt.settings import get_settings
 from worker.candidates import JobSpecs, open_worker_repository, run_candidates
 from worker.celery_app import TASK_EVALUATE_BATCH, app
 from worker.notify import Notifier
-
-log = logging.getLogger(__name__)
-
-#: Task names no longer served -> why a message of one is refused (logged with its arguments).
-RETIRED_TASKS = {
-    "cmrt.evaluate_candidate": "the single-candidate task is retired (drivers send "
-                               f"{TASK_EVALUATE_BATCH}); the message is discarded, its candidate "
-                               "stays pending and its job's driver sends it again",
-}
 
 _lock = threading.Lock()
 _repo = None
@@ -87,16 +71,3 @@ def evaluate_candidates(self, job_id: str, generation: int, indices: list[int]) 
                          max_attempts=get_settings().max_attempts, cache=_cache,
                          worker_name=_worker_name(self), notify=_notify)
     return " ".join(r["status"] for r in out)
-
-
-@task_unknown.connect
-def _refuse_retired(name: str | None = None, id: str | None = None,  # noqa: A002 - the signal's
-                    message: Any = None, **_: Any) -> None:
-    """Log why a message of a retired task was refused (Celery has discarded it already)."""
-    why = RETIRED_TASKS.get(name or "")
-    if why is None:
-        return  # Celery's own error names any other unregistered task
-    args = None
-    with contextlib.suppress(Exception):  # protocol 2: the body is [args, kwargs, embed]
-        args = message.payload[0]
-    log.error("refused %s message %s with arguments %s: %s", name, id, args, why)

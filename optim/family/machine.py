@@ -8,8 +8,8 @@ The decisions, in this order:
      runs (the driver says when its runs have stopped);
   2. a run failed -> `Fail`, naming the first failed run and its reason, and the runs under way
      to stop;
-  3. every run of the plan finished and the probes evaluated -> `Finish` with the family's
-     document (`optim.family.report.family_report`);
+  3. every run of the plan finished and the probes evaluated -> `Finish` (the driver then
+     makes the family's document, `optim.family.report.family_report`: not a decision);
   4. otherwise every ready run (its needs finished, `ready_runs`: the critical path first), as
      many as the capacity leaves room for: `StartRun` with where it starts (`run_start`), or,
      for the probes, `EvaluateProbes` with the points to evaluate (the CMRT interpolated at
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -37,7 +36,6 @@ from optim.family.plan import (
     ready_runs,
     run_start,
 )
-from optim.family.report import family_report
 from optim.family.spec import FamilySpec
 from optim.outcome import EvalOutcome
 from optim.result import OptimizationResult
@@ -107,9 +105,8 @@ class Cancel:
 
 @dataclass(frozen=True)
 class Finish:
-    """Every run finished and the probes evaluated: the family is done with this document."""
-
-    report: dict[str, Any]
+    """Every run finished and the probes evaluated: the family is done, its document made
+    from the state's results and probes (`optim.family.report.family_report`)."""
 
 
 Action = StartRun | EvaluateProbes | Fail | Cancel | Finish
@@ -131,7 +128,7 @@ def next_actions(
         return [Fail(run_id, reason, under_way)]
     done = state.done
     if all(r.id in done for r in runs):
-        return [Finish(family_report(fs, state.results, state.probes))]
+        return [Finish()]
     active = state.active
     ready = ready_runs(runs, done, active)
     if state.capacity is not None:

@@ -15,6 +15,7 @@ from pydantic import Field, PrivateAttr, ValidationError, model_validator
 
 from cmrt.defaults import DEFAULT_SEED
 from optim.errors import OptimError
+from optim.objective import SimObjective
 from sim.errors import SpecError
 from sim.spec import OptimizeConfig, TaskSpec, parse_spec
 from sim.specbase import StrictModel
@@ -186,6 +187,12 @@ def member_spec(fs: FamilySpec, value: float, role: str = MAIN) -> TaskSpec:
     return hit
 
 
+def member_objective(fs: FamilySpec, value: float) -> SimObjective:
+    """The simulation of the member at `value` under the main rules (one simulator per value,
+    whatever a run's rules): what both family drivers evaluate a member's runs and probe with."""
+    return SimObjective(member_spec(fs, value))
+
+
 def _member_spec(fs: FamilySpec, value: float, role: str) -> TaskSpec:
     data = set_path(fs.base.model_dump(mode="json"), fs.param, float(value))
     data["family"] = fs.family
@@ -207,6 +214,7 @@ __all__ = [
     "FamilySpec",
     "WarmConfig",
     "get_path",
+    "member_objective",
     "member_spec",
     "parse_family",
     "set_path",

@@ -37,5 +37,6 @@ async def refine_cmrt(request: Request, svc: ServicesDep) -> JSONResponse:
     url = url_for(request, "get_job", job_id=job.id)
     body = schemas.RefineAccepted(
         id=job.id, url=url, status=job.status, budget=got.budget.to_dict(),
-        basis_id=job.basis_id, start=job.start, answer=answer_out(got.answer, request, offer=False))
+        basis_id=job.basis_id, start=job.start.to_json() if job.start else None,
+        answer=answer_out(got.answer, request, offer=False))
     return JSONResponse(body.model_dump(mode="json"), status_code=202, headers={"Location": url})

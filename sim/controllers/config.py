@@ -5,10 +5,9 @@ The spec's `controller` field is a discriminated union on `type` over the regist
 
     controller: {type: momentum, k_l: 30}       # the momentum QP (the default) with overrides
     controller: {type: pd_world, k1: 100}       # (see sim.controllers.pd)
-    controller: {k_l: 30}                       # the legacy form: momentum overrides
 
-A block without `type` (the legacy flat dict of gain overrides, `{}` included) is the momentum
-controller's, so every spec written before the union keeps its meaning and its objective.
+A block without `type` is refused (`sim.spec.format_error` says what to send); a spec without
+the block has the momentum controller with its default gains.
 
 Contract of a `ControllerConfig` (a pydantic model with a `type: Literal[...]` tag):
   * `check(spec, character)`: rules that need the rest of the spec or the character; raises

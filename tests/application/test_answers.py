@@ -148,16 +148,16 @@ def test_a_job_never_starts_from_an_average_across_a_switch(repo):
     from application.library import library_start
 
     within = library_start(repo, _spec(0.45))
-    assert within["from"].startswith("library: interpolated along duration between 0.4 and 0.5")
-    assert len(within["cmrts"]) == 2
+    assert within.origin.startswith("library: interpolated along duration between 0.4 and 0.5")
+    assert len(within.cmrts) == 2
     across = library_start(repo, _spec(0.58))
     near = next(k.id for k in repo.cmrt_keys("bend") if k.task_parameters["duration"] == 0.5)
-    assert across["cmrts"] == [near] and "strategy switch" in across["from"]
+    assert across.cmrts == (near,) and "strategy switch" in across.origin
     from application.library import LibraryCmrt
     from optim.spline import encode
 
     member = LibraryCmrt.of(repo.get_cmrt(near)).spline()  # the member itself, for this clip
-    assert across["x0"] == pytest.approx(encode(_spec(0.58), member))
+    assert across.x0 == pytest.approx(encode(_spec(0.58), member))
 
 
 def test_a_query_names_one_point_or_is_refused(repo):

@@ -63,7 +63,7 @@ def test_the_humanoid_performs_the_clip_standing_and_a_cmrt_lowers_its_objective
 
 
 @pytest.mark.parametrize("args, words", [
-    (["tests/data/none.bvh"], "tests/data/none.bvh: no such file"),
+    (["tests/data/none.bvh"], "tests/data/none.bvh: cannot read the BVH file (no such file)"),
     (["tests/data/cmu_02_06_bend.bvh"], "none the built-in maps know"),
     (["tests/data/cmu_02_01_walk.bvh", "--map", "tests/data/none.yaml"], "cannot read the map"),
     (["tests/data/cmu_02_01_walk.bvh", "--joints", "wrist"], "--joints: 'wrist'"),

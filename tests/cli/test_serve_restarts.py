@@ -14,13 +14,13 @@ from pathlib import Path
 
 import httpx
 import pytest
+from local_pool import local_executor
 
 from cmrt.settings import Settings
 from optim.executors import SerialExecutor
 from sim.spec import parse_spec
 from store import open_repository
 from worker.driver import JobDriver
-from worker.executors import LocalPoolExecutor
 
 ROOT = Path(__file__).resolve().parents[2]
 CMRT = ROOT / ".venv" / "bin" / "cmrt"
@@ -48,7 +48,7 @@ def _uninterrupted(tmp_path: Path):
     job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                           family=spec.family_name, task=spec.task_type,
                           seed=SEED)
-    ex = LocalPoolExecutor(settings, pool=SerialExecutor())  # the real objective
+    ex = local_executor(settings, SerialExecutor())  # the real objective
     JobDriver(repo, job.id, ex, settings).run()
     return repo, job.id
 

@@ -191,7 +191,7 @@ class Counting:
         return self.inner.map(fn, batch)
 
 
-def test_runner_keeps_the_workers_busy_and_warm_starts_chains(tmp_path: Path) -> None:
+def test_runner_keeps_the_workers_busy_and_warm_starts_chains(tmp_path: Path, monkeypatch) -> None:
     # popsize 3 on 2 workers: one run alone leaves a worker idle in every other round (at most
     # 3 / 4 busy); the family's concurrent runs fill those rounds from the shared queue
     fs = family(strategy="continuation", leave_out=[1.0, 2.5], values=[1.0, 2.0, 2.5, 3.5],
@@ -199,12 +199,12 @@ def test_runner_keeps_the_workers_busy_and_warm_starts_chains(tmp_path: Path) ->
                                            "max_evaluations": 36}},
                 warm={"sigma0": 0.05, "window": 3, "max_evaluations": 15})
     sleep = 0.02
+    monkeypatch.setattr("optim.family_run.member_objective", line_objective(sleep))
 
     def timed(max_active: int | None, state: str) -> tuple[Any, float]:
         ex = Counting(pool)
         t0 = time.perf_counter()
-        out = run_family(fs, ex, tmp_path / state, objective_for=line_objective(sleep),
-                         max_active=max_active)
+        out = run_family(fs, ex, tmp_path / state, max_active=max_active)
         wall = time.perf_counter() - t0
         return out, ex.n * sleep / (2 * wall)  # the evaluations' sleep over 2 workers' wall
 
@@ -236,18 +236,20 @@ RESUME_SCRIPT = textwrap.dedent("""
     import sys
     from optim.executors import PoolExecutor
     from optim.family.spec import parse_family
+    import optim.family_run
     from optim.family_run import run_family
     from synthetic import LineFamily
     import json
     fs = parse_family(json.loads(sys.argv[1]))
+    optim.family_run.member_objective = lambda f, v: LineFamily(
+        value=v, base=0.1, slope=0.2, sleep=float(sys.argv[3]))
     with PoolExecutor(2) as pool:
-        run_family(fs, pool, sys.argv[2], resume=True,
-                   objective_for=lambda f, v: LineFamily(value=v, base=0.1, slope=0.2,
-                                                           sleep=float(sys.argv[3])))
+        run_family(fs, pool, sys.argv[2], resume=True)
 """)
 
 
-def test_resume_after_a_killed_run_gives_the_same_family(tmp_path: Path) -> None:
+def test_resume_after_a_killed_run_gives_the_same_family(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr("optim.family_run.member_objective", line_objective())
     data = {"spec": BASE, "param": "clip.decay", "values": VALUES, "k": 2,
             "strategy": "continuation", "from": "low", "leave_out": [2.0],
             "warm": {"sigma0": 0.05, "window": 3, "max_evaluations": 30}}
@@ -271,8 +273,8 @@ def test_resume_after_a_killed_run_gives_the_same_family(tmp_path: Path) -> None
     assert 2 <= len(finished) < len(plan_runs(fs))
     assert list(killed.glob("*.ckpt")), "an active run's checkpoint survives the kill"
     with PoolExecutor(2) as pool:
-        resumed = run_family(fs, pool, killed, resume=True, objective_for=line_objective())
-        fresh = run_family(fs, pool, tmp_path / "fresh", objective_for=line_objective())
+        resumed = run_family(fs, pool, killed, resume=True)
+        fresh = run_family(fs, pool, tmp_path / "fresh")
     assert not set(resumed.started) & finished  # nothing finished was run again
     assert set(resumed.results) == set(fresh.results)
     for rid, res in fresh.results.items():
@@ -285,27 +287,28 @@ def test_resume_after_a_killed_run_gives_the_same_family(tmp_path: Path) -> None
     assert a == b
 
 
-def test_state_of_another_family_is_refused(tmp_path: Path) -> None:
+def test_state_of_another_family_is_refused(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr("optim.family_run.member_objective", line_objective())
     from optim.errors import CheckpointError
 
     fs = family()
     with PoolExecutor(2) as pool:
-        run_family(fs, pool, tmp_path, objective_for=line_objective())
+        run_family(fs, pool, tmp_path)
         with pytest.raises(CheckpointError, match="earlier family run"):
-            run_family(fs, pool, tmp_path, objective_for=line_objective())
+            run_family(fs, pool, tmp_path)
         with pytest.raises(CheckpointError, match="different family"):
-            run_family(family(seed=2), pool, tmp_path, resume=True,
-                       objective_for=line_objective())
+            run_family(family(seed=2), pool, tmp_path, resume=True)
 
 
-def test_cold_runs_of_another_family_are_reused(tmp_path: Path) -> None:
+def test_cold_runs_of_another_family_are_reused(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr("optim.family_run.member_objective", line_objective())
     ind = family(leave_out=[2.5])
     chained = family(strategy="continuation", leave_out=[2.5])
     with PoolExecutor(2) as pool:
-        first = run_family(ind, pool, tmp_path / "ind", objective_for=line_objective())
-        fresh = run_family(chained, pool, tmp_path / "fresh", objective_for=line_objective())
+        first = run_family(ind, pool, tmp_path / "ind")
+        fresh = run_family(chained, pool, tmp_path / "fresh")
         lines: list[str] = []
-        reused = run_family(chained, pool, tmp_path / "reused", objective_for=line_objective(),
+        reused = run_family(chained, pool, tmp_path / "reused",
                             reuse=[tmp_path / "ind"], log=lines.append)
     # the chains' heads (1.0 and 3.5) and the 2.5 reference are the independent members
     copied = {"member-up-1", "member-down-3.5", "reference-2.5"}

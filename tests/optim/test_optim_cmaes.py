@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
+
 import numpy as np
 import pytest
 from synthetic import NoisyFlat, Sphere
@@ -65,7 +67,7 @@ def test_first_stop_replays_the_rules_on_a_longer_run(rules):
     drive(free, fn, max_gens=ruled.iterations + 20)
     assert free.history[:ruled.iterations] == ruled.history
     assert rules.first_stop(free.history) == (ruled.iterations - 1, reason)
-    assert rules.first_stop([h.to_dict() for h in free.history]) == (ruled.iterations - 1,
+    assert rules.first_stop([asdict(h) for h in free.history]) == (ruled.iterations - 1,
                                                                        reason)
     assert rules.first_stop(free.history[:ruled.iterations - 1]) is None
 
@@ -156,4 +158,4 @@ def test_loads_rejects_garbage():
 
 def test_generation_stats_dict_round_trip():
     s = GenerationStats(3, 30, 1.0, 2.0, 3.0, 0.1, 0.9)
-    assert GenerationStats.from_dict(s.to_dict()) == s
+    assert GenerationStats.from_dict(asdict(s)) == s

@@ -29,7 +29,7 @@ class Recorder:
         return None
 
     def save(self, opt, generation, stats, candidates, wall_seconds) -> None:  # noqa: ANN001
-        d = stats.to_dict()
+        d = dataclasses.asdict(stats)
         d.pop("worst")  # a lower bound when the last was cut: the one figure that may differ
         self.rows.append({"stats": d, "mean": opt.mean.tobytes(), "sigma": opt.sigma,
                           "C": opt.covariance.tobytes(),

@@ -4,13 +4,13 @@ synthetic objective (tests/synthetic.py; fakes only here, never in the integrati
 from __future__ import annotations
 
 import pytest
+from local_pool import local_executor as make_local_executor
 from svc_helpers import LOCAL
 from synthetic import Sphere
 
 from cmrt.settings import Settings
 from optim.executors import SerialExecutor
 from store import open_repository
-from worker.executors import LocalPoolExecutor
 
 
 @pytest.fixture
@@ -32,8 +32,7 @@ def repo(settings):
 
 @pytest.fixture
 def local_executor(config):
-    ex = LocalPoolExecutor(config, pool=SerialExecutor(),
-                           objective_factory=lambda spec: Sphere(centre=0.3))
+    ex = make_local_executor(config, SerialExecutor(), lambda spec: Sphere(centre=0.3))
     yield ex
     ex.close()
 

@@ -24,6 +24,7 @@ from fastapi.testclient import TestClient
 
 sys.path.insert(0, str(Path(__file__).parent))
 sys.path += [str(Path(__file__).parents[2]), str(Path(__file__).parents[1])]  # for `synthetic`
+from local_pool import local_executor  # noqa: E402
 from svc_helpers import LOCAL, bend_spec  # noqa: E402
 from synthetic import Sphere  # noqa: E402
 
@@ -32,7 +33,6 @@ from optim.executors import SerialExecutor  # noqa: E402
 from service.app import create_app  # noqa: E402
 from service.schemas import JOB_EXAMPLE  # noqa: E402
 from store import open_repository  # noqa: E402
-from worker.executors import LocalPoolExecutor  # noqa: E402
 
 TERMINAL = ("converged", "stopped", "failed", "cancelled")
 #: A small family for /families/{family_id}: the quiet stance along its decay, 4 members by
@@ -54,8 +54,7 @@ def _auth(settings: Settings) -> dict[str, str]:
 def seed_library(settings: Settings) -> dict[str, str]:
     repo = open_repository(settings.database_url)
     config = settings.model_copy(update={"poll_interval": 0.02, "scan_interval": 0.1})
-    executor = LocalPoolExecutor(config, pool=SerialExecutor(),
-                                 objective_factory=lambda spec: Sphere(centre=0.3))
+    executor = local_executor(config, SerialExecutor(), lambda spec: Sphere(centre=0.3))
     with TestClient(create_app(config, repo=repo, executor=executor),
                     headers=_auth(settings), base_url=LOCAL) as c:
         jobs = [c.post("/jobs", json=bend_spec(f"bend_{i}", d)).json()["id"]

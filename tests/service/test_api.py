@@ -103,6 +103,10 @@ def test_cancel(client):
         (json.dumps({**bend_spec(), "task": {"type": "juggle"}}).encode(), 422, "task"),
         (json.dumps({**bend_spec(), "clip": {"duration": -1}}).encode(), 422, "clip.duration"),
         (json.dumps({**bend_spec(), "typo": 1}).encode(), 422, "typo"),
+        (json.dumps({**bend_spec(), "task": "pose_change"}).encode(), 422,
+         "task: must be a mapping with its type, e.g. {type: pose_change, ...}"),
+        (json.dumps({**bend_spec(), "controller": {"k_l": 30}}).encode(), 422,
+         "controller.type: required: send {type: momentum, ...}"),
         (json.dumps({**bend_spec(), "task": {"type": "sequence", "motions": [
             {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 40}}).encode(),
          422, "motions"),

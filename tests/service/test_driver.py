@@ -5,15 +5,15 @@ from __future__ import annotations
 import threading
 
 import pytest
+from local_pool import local_executor
 from svc_helpers import bend_spec
 from synthetic import Sphere
 
 from optim.executors import EvalOutcome, SerialExecutor
 from sim.spec import parse_spec
 from store import NotFound
-from store.records import CANCELLED, FAILED, STOPPED
+from store.records import CANCELLED, FAILED, STOPPED, JobStart
 from worker.driver import FINAL_GENERATION, CancelFlags, JobDriver
-from worker.executors import LocalPoolExecutor
 
 
 def _job(repo, spec=None, seed=1):
@@ -65,7 +65,7 @@ def test_half_done_generation_is_not_evaluated_again(repo, config):
             calls.append(tuple(x))
             return super().__call__(x)
 
-    ex = LocalPoolExecutor(config, pool=SerialExecutor(), objective_factory=lambda s: Counting())
+    ex = local_executor(config, SerialExecutor(), lambda s: Counting())
     job = _job(repo)
     stop = threading.Event()
     JobDriver(repo, job.id, ex, config, shutdown=stop,
@@ -117,7 +117,7 @@ class _DyingPool(SerialExecutor):
 
 def test_candidate_killing_its_pool_process_fails_job_after_max_attempts(repo, config):
     pool = _DyingPool()
-    ex = LocalPoolExecutor(config, pool=pool)
+    ex = local_executor(config, pool)
     spec = bend_spec()
     spec["optimize"]["sigma0"] = 0.9
     job = _job(repo, spec, seed=3)
@@ -146,7 +146,7 @@ def test_library_entry_is_never_worse_than_the_flat_spline(repo, config, duratio
     spec["task"] = {"type": "pose_change",
                     "target": {"waist": -90, "shoulder_r": 90, "shoulder_l": 90}}
     job = _job(repo, spec, seed=0)
-    ex = LocalPoolExecutor(config, pool=SerialExecutor())  # the real simulation objective
+    ex = local_executor(config, SerialExecutor())  # the real simulation objective
     assert JobDriver(repo, job.id, ex, config).run() == STOPPED
     entry = repo.job_cmrt(job.id)
     best, flat = repo.evaluations(job.id, FINAL_GENERATION)[::-1]  # index 0 flat, 1 best
@@ -194,7 +194,7 @@ def test_job_result_equals_the_command_lines_search_from_the_same_start(repo, co
 
     spec = parse_spec(bend_spec())
     x0 = [min(1.0, v + 0.05) for v in flat_params(spec)]
-    start = {"from": "a test", "x0": x0}
+    start = JobStart("a test", tuple(x0))
     job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                           family=spec.family_name, task=spec.task_type, seed=3, start=start)
     assert JobDriver(repo, job.id, local_executor, config).run() == STOPPED
@@ -225,7 +225,7 @@ def test_the_rank_cut_keeps_a_local_pool_job_identical(repo, config):
     # worse candidates run longer: the last one left in a generation is often the worst
     fn = RunningSum(steps=200, check_every=20, sleep=1e-3)
     ref = optimize(spec, SerialExecutor(), seed=3, objective=fn, cut=False)
-    ex = LocalPoolExecutor(config, pool=FairPool(2), objective_factory=lambda s: fn)
+    ex = local_executor(config, FairPool(2), lambda s: fn)
     try:
         job = repo.create_job(spec.model_dump(mode="json"), name=spec.name,
                               family=spec.family_name, task=spec.task_type, seed=3)

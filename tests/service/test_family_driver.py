@@ -12,16 +12,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from local_pool import local_executor
 from synthetic import LineFamily
 
 from optim.executors import PoolExecutor, SerialExecutor
 from optim.family.checks import family_checks
 from optim.family.plan import plan_runs
-from optim.family.spec import parse_family
+from optim.family.spec import member_objective, parse_family
 from optim.family_run import run_family
 from store.records import CANCELLED, FAILED, FAMILY_DONE, FAMILY_RUNNING
 from worker.driver import JobDriver
-from worker.executors import LocalPoolExecutor
 from worker.family import FamilyDriver
 
 BASE: dict[str, Any] = {
@@ -43,16 +43,25 @@ def _objective(fs: Any, value: float) -> LineFamily:
     return LineFamily(value=value, base=0.1, slope=0.2)
 
 
+@pytest.fixture(autouse=True)
+def members(monkeypatch):
+    """Both drivers' members are the synthetic line family, the probes evaluated in this
+    process (a test may set another objective)."""
+    monkeypatch.setattr("worker.family.PoolExecutor", lambda _workers: SerialExecutor())
+    monkeypatch.setattr("worker.family.member_objective", _objective)
+    monkeypatch.setattr("optim.family_run.member_objective", _objective)
+    return monkeypatch
+
+
 @pytest.fixture
 def executor(config):
-    ex = LocalPoolExecutor(config, pool=SerialExecutor(),
-                           objective_factory=lambda spec: _objective(None, spec.clip.decay))
+    ex = local_executor(config, SerialExecutor(), lambda spec: _objective(None, spec.clip.decay))
     yield ex
     ex.close()
 
 
 def _drive(repo, config, executor, family_id: str, *, stop_after: int | None = None,
-           seconds: float = 60.0, objective_for: Any = _objective) -> str:
+           seconds: float = 60.0) -> str:
     """Advance the family, running each job it starts to its end in this thread (the probes
     are evaluated in the driver's probe thread: a step that starts nothing waits a little)."""
     started: list[str] = []
@@ -61,8 +70,7 @@ def _drive(repo, config, executor, family_id: str, *, stop_after: int | None = N
         started.append(job_id)
         JobDriver(repo, job_id, executor, config).run()
 
-    driver = FamilyDriver(repo, submit=submit, probe_executor=SerialExecutor(),
-                          objective_for=objective_for)
+    driver = FamilyDriver(repo, config, submit=submit)
     status = FAMILY_RUNNING
     deadline = time.monotonic() + seconds
     try:
@@ -101,14 +109,14 @@ def test_service_family_equals_the_command_lines(repo, config, executor, tmp_pat
     assert _drive(repo, config, executor, fid) == FAMILY_DONE
     report = repo.family_report(fid)
     fs = parse_family(_family())
-    local = run_family(fs, SerialExecutor(), tmp_path / "cli", objective_for=_objective)
+    local = run_family(fs, SerialExecutor(), tmp_path / "cli")
     assert _family_of(report) == _family_of(local.report)
     assert report["checks"] == family_checks(fs, local.results, local.probes).to_dict()
     assert len(report["members"]) == 5 and len(report["checks"]["probes"]) == 3
     assert sorted(report["jobs"]) == sorted(r.id for r in plan_runs(fs) if r.id != "probes")
     jobs = repo.family_jobs(fid)
-    warm = [j for j in jobs.values() if j.start and j.start["from"].startswith("member-")]
-    assert warm and all(len(j.start["x0"]) == 8 for j in warm)  # warm-started from neighbours
+    warm = [j for j in jobs.values() if j.start and j.start.origin.startswith("member-")]
+    assert warm and all(len(j.start.x0) == 8 for j in warm)  # warm-started from neighbours
     assert repo.get_family(fid).status == FAMILY_DONE
     # each member landed in the library with its parameter
     decays = {c.decay for c in repo.list_cmrts("fam", limit=100)[0]}
@@ -128,13 +136,15 @@ BEND: dict[str, Any] = {
 
 
 @pytest.mark.slow
-def test_the_bend_family_is_the_same_through_both_drivers(repo, config, tmp_path: Path):
+def test_the_bend_family_is_the_same_through_both_drivers(repo, config, members,
+                                                          tmp_path: Path):
     """Real simulations: the runner in this process over a pool of two, the service's jobs
     over the API's local pool."""
-    sims = LocalPoolExecutor(config, pool=SerialExecutor())
+    members.setattr("worker.family.member_objective", member_objective)
+    members.setattr("optim.family_run.member_objective", member_objective)
+    sims = local_executor(config, SerialExecutor())
     fid = _create(repo, BEND)
-    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, sims, config).run(),
-                          probe_executor=SerialExecutor())
+    driver = FamilyDriver(repo, config, submit=lambda j: JobDriver(repo, j, sims, config).run())
     status, deadline = FAMILY_RUNNING, time.monotonic() + 600
     try:
         while status == FAMILY_RUNNING and time.monotonic() < deadline:
@@ -163,25 +173,26 @@ def test_a_driver_killed_midway_resumes_to_the_same_family(repo, config, executo
 
 def test_cancel_ends_the_family_and_its_jobs(repo, config, executor):
     fid = _create(repo, _family())
-    FamilyDriver(repo, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
+    FamilyDriver(repo, config, submit=lambda _j: None).advance(fid)
     runs = repo.get_family(fid).runs
     assert runs and all(repo.get_job(j).status == "queued" for j in runs.values())
     repo.request_family_cancel(fid)
-    assert FamilyDriver(repo, probe_executor=SerialExecutor()).advance(fid) == CANCELLED
+    assert FamilyDriver(repo, config).advance(fid) == CANCELLED
     assert all(repo.get_job(j).status == CANCELLED for j in runs.values())
 
 
 def test_a_failed_run_fails_the_family_naming_it(repo, config, executor):
     fid = _create(repo, _family())
-    FamilyDriver(repo, submit=lambda _j: None, probe_executor=SerialExecutor()).advance(fid)
+    FamilyDriver(repo, config, submit=lambda _j: None).advance(fid)
     run_id, job_id = sorted(repo.get_family(fid).runs.items())[0]
     repo.set_job_status(job_id, FAILED, error="boom")
-    assert FamilyDriver(repo, probe_executor=SerialExecutor()).advance(fid) == FAILED
+    assert FamilyDriver(repo, config).advance(fid) == FAILED
     fam = repo.get_family(fid)
     assert run_id in fam.error and "boom" in fam.error
 
 
-def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, config, executor):
+def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, config, executor,
+                                                                      members):
     """Members that are all the same CMRT (an objective blind to the value): the reduced
     run's basis cannot be made; the family fails naming why instead of retrying for ever."""
     fid = _create(repo, _family(strategy="independent"))
@@ -189,10 +200,9 @@ def test_a_family_whose_plan_cannot_be_computed_fails_with_the_reason(repo, conf
     def same(fs: Any, value: float) -> LineFamily:
         return LineFamily(value=1.0, base=0.1, slope=0.2)
 
-    flat = LocalPoolExecutor(config, pool=SerialExecutor(),
-                             objective_factory=lambda spec: same(None, 0.0))
-    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, flat, config).run(),
-                          probe_executor=SerialExecutor(), objective_for=same)
+    flat = local_executor(config, SerialExecutor(), lambda spec: same(None, 0.0))
+    members.setattr("worker.family.member_objective", same)
+    driver = FamilyDriver(repo, config, submit=lambda j: JobDriver(repo, j, flat, config).run())
     status = FAMILY_RUNNING
     for _ in range(50):
         status = driver.advance(fid)
@@ -219,7 +229,8 @@ class Gated:
         return self.inner(x)
 
 
-def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, tmp_path: Path):
+def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, members,
+                                                     tmp_path: Path):
     """While one family's probes are evaluated (held here), its steps and another family's
     go on; the probes' outcomes are picked up by a later step and the checks are the command
     line's."""
@@ -228,8 +239,9 @@ def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, tmp
     def gated(fs: Any, value: float) -> Gated:
         return Gated(_objective(fs, value), gate, entered, left)
 
-    driver = FamilyDriver(repo, submit=lambda j: JobDriver(repo, j, executor, config).run(),
-                          probe_executor=SerialExecutor(), objective_for=gated)
+    members.setattr("worker.family.member_objective", gated)
+    driver = FamilyDriver(repo, config,
+                          submit=lambda j: JobDriver(repo, j, executor, config).run())
     a = _create(repo, _family())
     try:
         deadline = time.monotonic() + 60
@@ -251,6 +263,6 @@ def test_a_familys_probes_hold_no_other_familys_step(repo, config, executor, tmp
         gate.set()
         driver.close()
     fs = parse_family(_family())
-    local = run_family(fs, SerialExecutor(), tmp_path / "cli", objective_for=_objective)
+    local = run_family(fs, SerialExecutor(), tmp_path / "cli")
     assert repo.family_report(a)["checks"] == family_checks(fs, local.results,
                                                             local.probes).to_dict()

@@ -5,13 +5,13 @@ at `GET /jobs/{id}`, as the command line's result has them."""
 from __future__ import annotations
 
 import pytest
+from local_pool import local_executor
 
 from optim.executors import SerialExecutor
 from optim.run import optimize
 from sim.spec import parse_canonical
 from store.records import STOPPED
 from worker.driver import JobDriver
-from worker.executors import LocalPoolExecutor
 
 SPEC = {"name": "robust_bend", "family": "robust_bend",
         "clip": {"preparation": 0.2, "duration": 0.2, "decay": 0.2},
@@ -43,7 +43,7 @@ def test_get_job_shows_the_variants_of_a_finished_robust_job(client, repo, confi
     assert r.status_code in (201, 202), r.text
     job_id = r.json()["id"]
     assert client.get(f"/jobs/{job_id}").json()["robust"] is None  # not finished yet
-    local = LocalPoolExecutor(config, pool=SerialExecutor())  # the real objective
+    local = local_executor(config, SerialExecutor())  # the real objective
     try:
         assert JobDriver(repo, job_id, local, config).run() == STOPPED
     finally:

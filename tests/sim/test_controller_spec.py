@@ -1,5 +1,5 @@
-"""The spec's `controller` block: a discriminated union on `type` (default momentum), the
-legacy flat dict of momentum overrides read as before, errors naming the field."""
+"""The spec's `controller` block: a discriminated union on `type` (momentum when the block is
+left out), a block without its type refused saying what to send, errors naming the field."""
 
 from __future__ import annotations
 
@@ -28,22 +28,21 @@ def test_registry_holds_the_default_type():
     assert CONTROLLER_TYPES["momentum"] is MomentumConfig
 
 
-def test_legacy_flat_dict_is_momentum_overrides():
-    legacy = parse_spec(_bend({"k_l": 30.0, "d_t": 25.0}))
+def test_a_block_without_its_type_is_refused_saying_what_to_send():
+    for flat in ({"k_l": 30.0, "d_t": 25.0}, {}):
+        with pytest.raises(SpecError, match=r"controller\.type: required: send "
+                                            r"\{type: momentum, \.\.\.\}"):
+            parse_spec(_bend(flat))
     tagged = parse_spec(_bend({"type": "momentum", "k_l": 30.0, "d_t": 25.0}))
-    assert legacy == tagged
-    assert legacy.controller.type == "momentum" and not legacy.controller.stepping
-    assert legacy.controller.overrides() == {"k_l": 30.0, "d_t": 25.0}
+    assert tagged.controller.overrides() == {"k_l": 30.0, "d_t": 25.0}
     # The dump is the tagged form with only the set gains, and reads back to the same spec.
-    dumped = legacy.model_dump(mode="json")["controller"]
+    dumped = tagged.model_dump(mode="json")["controller"]
     assert dumped == {"type": "momentum", "stepping": False, "k_l": 30.0, "d_t": 25.0}
-    assert parse_spec(legacy.model_dump(mode="json")) == legacy
+    assert parse_spec(tagged.model_dump(mode="json")) == tagged
 
 
-def test_no_controller_and_empty_dict_are_the_default_momentum():
+def test_no_controller_is_the_default_momentum():
     absent = parse_spec(_bend())
-    empty = parse_spec(_bend({}))
-    assert absent == empty
     assert absent.controller.type == "momentum" and absent.controller.overrides() == {}
 
 
@@ -51,7 +50,7 @@ def test_no_controller_and_empty_dict_are_the_default_momentum():
     ({"type": "walk"}, "controller.type", "unknown controller type 'walk'"),
     ({"type": 3}, "controller.type", "one of momentum"),
     ([1.0], "controller.type", "must be a mapping"),
-    ({"kl": 20.0}, "controller", "unknown gain 'kl'"),
+    ({"type": "momentum", "kl": 20.0}, "controller", "unknown gain 'kl'"),
     ({"type": "momentum", "k_l": -1.0}, "controller.k_l", "must be from 0.001 to 10000 s^-2"),
     ({"type": "momentum", "k_l": "20"}, "controller.k_l", "valid number"),
     ({"type": "momentum", "stepping": 1}, "controller.stepping", "valid boolean"),
@@ -73,7 +72,7 @@ def test_no_controller_and_empty_dict_are_the_default_momentum():
      "controller.clearance", "must be from 0.01 to 0.3 m, got 0.5"),
     ({"type": "momentum", "stepping": True, "max_step_fraction": 1.5},
      "controller.max_step_fraction", "must be from 0.1 to 1 (of the leg length), got 1.5"),
-    ({"cop_box": 0.5}, "controller.cop_box", "below half the support length"),
+    ({"type": "momentum", "cop_box": 0.5}, "controller.cop_box", "below half the support length"),
     ({"type": "momentum", "feet_fixed": {"d_l": 20.0}}, "controller",
      "feet_fixed: applies only with stepping: true"),
     ({"type": "momentum", "stepping": True, "feet_fixed": {"dl": 20.0}}, "controller",

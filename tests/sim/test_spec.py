@@ -157,7 +157,7 @@ def _float_knots(d):
 
 
 def _cop_box_too_wide(d):
-    d["controller"] = {"cop_box": 0.5}
+    d["controller"] = {"type": "momentum", "cop_box": 0.5}
     return "push", "controller.cop_box", "below half the support length"
 
 
@@ -177,7 +177,7 @@ def _unknown_gain_in_schedule(d):
 
 
 def _unknown_gain_in_controller(d):
-    d["controller"] = {"kl": 20.0}
+    d["controller"] = {"type": "momentum", "kl": 20.0}
     return "slow_bend", "controller", "unknown gain 'kl'"
 
 
@@ -264,20 +264,17 @@ def test_non_mapping_and_unreadable(tmp_path):
     assert load_spec(js).clip.length == 3.0  # default preparation 1 s and decay 1 s
 
 
-def test_legacy_task_form_is_converted():
-    """The pre-registry form (`task: push` + a `push:` block) parses to the same spec."""
-    new = load_spec(EXAMPLES_DIR / "push.yaml")
+def test_a_task_named_alone_is_refused_saying_what_to_send():
+    """The form before the registry (`task: push` + a `push:` block) is no longer read: the
+    error names the field and the form to send."""
     old = {k: v for k, v in _load("push").items() if k != "task"}
     old.update({"task": "push", "push": {"force": 100.0, "direction": "forward",
                                          "body": "trunk"}})
-    assert parse_spec(old) == new
-    bend = {k: v for k, v in _load("slow_bend").items() if k != "task"}
-    bend.update({"task": "pose_change", "pose_change": {"target": {"waist": -90.0,
-                 "shoulder_r": 90.0, "shoulder_l": 90.0}}, "push": None})
-    assert parse_spec(bend) == load_spec(EXAMPLES_DIR / "slow_bend.yaml")
-    assert parse_spec({"name": "q", "task": "quiet_stance", "clip": {"duration": 1.0}}
-                      ).task_type == "quiet_stance"
-    # The dump is the new form and parses back to the same spec.
+    with pytest.raises(SpecError, match=r"task: must be a mapping with its type, e\.g\. "
+                                        r"\{type: push, \.\.\.\}"):
+        parse_spec(old)
+    # The dump holds the one form, which parses back to the same spec.
+    new = load_spec(EXAMPLES_DIR / "push.yaml")
     dumped = new.model_dump(mode="json")
     assert dumped["task"]["type"] == "push" and "push" not in dumped
     assert parse_spec(dumped) == new

@@ -1,15 +1,16 @@
-"""worker.candidates.run_candidate (the body of the Celery task) against the real store, with a
+"""worker.candidates.run_candidates (the body of the Celery task) against the real store, with a
 synthetic objective: claim, skip, fail after max_attempts, evaluate, store (first result wins)."""
 
 from __future__ import annotations
 
 import pytest
+from local_pool import FactorySpecs
 from store_helpers import get_evaluation
 from synthetic import Sphere
 
 from optim.outcome import FAILED_OBJECTIVE, EvalOutcome
 from store.repository import SqlRepository
-from worker.candidates import JobSpecs, run_candidate
+from worker.candidates import run_candidates
 
 SPEC = {
     "name": "w_bend", "family": "bend",
@@ -49,13 +50,14 @@ def setup(repo):
     job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
     repo.set_job_status(job.id, "running")
     objective = Counting()
-    cache = JobSpecs(lambda spec: objective)
+    cache = FactorySpecs(lambda spec: objective)
     return repo, job.id, objective, cache
 
 
 def run(repo, job_id, g, i, cache, max_attempts=3):
-    return run_candidate(repo, job_id, g, i, max_attempts=max_attempts, cache=cache,
-                         worker_name="w1/42")
+    """`run_candidates` of one candidate, as the Celery task runs it."""
+    return run_candidates(repo, job_id, g, [i], max_attempts=max_attempts, cache=cache,
+                          worker_name="w1/42")[0]
 
 
 def test_candidate_is_evaluated_once_and_its_result_stored(setup) -> None:
@@ -84,7 +86,7 @@ def test_fall_and_task_verdicts_are_stored_and_read_back_by_the_driver(repo) -> 
     repo.set_job_status(job.id, "running")
     verdict = EvalOutcome(objective=21.5, fell=True, cpu_seconds=0.1, fall_time=1.35,
                           fall_direction="backward", task_success=False)
-    cache = JobSpecs(lambda spec: (lambda x: verdict))
+    cache = FactorySpecs(lambda spec: (lambda x: verdict))
     repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5]])
     assert run(repo, job.id, 0, 0, cache)["status"] == "done"
     row = get_evaluation(repo, job.id, 0, 0)
@@ -145,7 +147,7 @@ def test_store_calls_survive_a_lost_database_connection(repo) -> None:
         job = repo.create_job(SPEC, name="w_bend", family="bend", task="pose_change", seed=1)
         repo.set_job_status(job.id, "running")
         repo.put_pending_evaluations(job.id, 0, [[0.5, 0.5], [0.3, 0.3]])
-        cache = JobSpecs(lambda spec: Sphere(centre=0.3))
+        cache = FactorySpecs(lambda spec: Sphere(centre=0.3))
         assert run(worker_repo, job.id, 0, 0, cache)["status"] == "done"
         if engine.dialect.name == "postgresql":  # drop the pooled connection's session
             from sqlalchemy import text

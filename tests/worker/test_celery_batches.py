@@ -15,16 +15,17 @@ import uuid
 from pathlib import Path
 
 import pytest
+from local_pool import local_executor
 from proc_helpers import stop_group
 
 from cmrt.settings import Settings
 from optim.executors import SerialExecutor
 from sim.spec import parse_spec
 from store import open_repository
-from store.records import DONE, QUEUED, STOPPED
+from store.records import DONE, STOPPED
 from worker.celery_app import make_celery
 from worker.driver import JobDriver
-from worker.executors import CeleryExecutor, LocalPoolExecutor
+from worker.executors import CeleryExecutor
 from worker.notify import NoticeWaiter, Notifier, notice_key
 
 pytestmark = pytest.mark.redis
@@ -101,7 +102,7 @@ def test_batched_celery_job_matches_the_local_pool_bit_for_bit(celery_worker):
     assert len(rows) == 10 and all((r.status, r.attempts) == (DONE, 1) for r in rows)
 
     ref = _job(repo, "same")
-    local = LocalPoolExecutor(settings, pool=SerialExecutor())  # the real objective
+    local = local_executor(settings, SerialExecutor())  # the real objective
     assert JobDriver(repo, ref.id, local, settings).run() == STOPPED
     a, b = repo.get_job(job.id), repo.get_job(ref.id)
     assert [g.best for g in repo.generations(job.id)] == \
@@ -186,24 +187,3 @@ def test_notices_reach_the_waiter_and_a_dead_redis_falls_back_to_polling():
     assert Notifier(dead).notify(job, 0, 0) is False
     assert NoticeWaiter(dead).wait(job, 0.05) is None
     assert NoticeWaiter("memory://").wait(job, 0.05) is None  # not Redis: no notices
-
-
-def test_a_message_of_the_retired_single_candidate_task_is_refused_and_logged(celery_worker):
-    import redis
-
-    settings, repo, worker, log = celery_worker
-    job = _job(repo, "old-form")
-    app = make_celery(settings.broker_url, settings.broker_url, settings)
-    sent = app.send_task("cmrt.evaluate_candidate", args=[job.id, 0, 0], queue=settings.queue,
-                         ignore_result=True)
-    t0 = time.monotonic()
-    while f"refused cmrt.evaluate_candidate message {sent.id}" not in log.read_text():
-        assert worker.poll() is None, log.read_text()[-3000:]
-        assert time.monotonic() - t0 < 30, log.read_text()[-3000:]
-        time.sleep(0.05)
-    line = next(x for x in log.read_text().splitlines() if sent.id in x and "refused" in x)
-    assert f"['{job.id}', 0, 0]" in line and "single-candidate task is retired" in line
-    # discarded, not re-queued; the job and its store are untouched; the worker goes on
-    assert redis.Redis.from_url(settings.broker_url).llen(settings.queue) == 0
-    assert repo.evaluations(job.id, 0) == [] and repo.get_job(job.id).status == QUEUED
-    assert worker.poll() is None

@@ -27,14 +27,11 @@ def config(tmp_path):
 
 
 def test_evaluation_task_settings() -> None:
-    from worker.tasks import RETIRED_TASKS, app, evaluate_candidates
+    from worker.tasks import evaluate_candidates
 
     assert evaluate_candidates.name == TASK_EVALUATE_BATCH
     assert evaluate_candidates.acks_late and evaluate_candidates.reject_on_worker_lost
     assert evaluate_candidates.ignore_result  # the driver reads the store, never a result
-    # the single-candidate task of the drivers before batches is not served any more
-    assert "cmrt.evaluate_candidate" in RETIRED_TASKS
-    assert not set(RETIRED_TASKS) & set(app.tasks)
 
 
 def test_app_settings_follow_the_design(config) -> None:
