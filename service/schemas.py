@@ -8,10 +8,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from application.families import FamilySpec
+from application.jobs import TaskSpec
 from cmrt.defaults import DEFAULT_SEED
-from optim.family.spec import FamilySpec
 from service.links import SIGNABLE
-from sim.spec import TaskSpec
 
 __all__ = ["FamilySpec", "TaskSpec"]
 
@@ -58,8 +58,8 @@ class Problem(BaseModel):
 
 
 class JobRequest(BaseModel):
-    """A bare TaskSpec, or this envelope with a seed, a PCA basis to search in, and where the
-    search starts."""
+    """A job request: the task spec as `spec`, with a seed, a PCA basis to search in, and
+    where the search starts."""
 
     model_config = ConfigDict(extra="forbid")
     spec: TaskSpec
