@@ -14,9 +14,9 @@ from typing import Annotated, Any
 
 from fastapi import Depends, Request
 
+from application.simulations import SimulationPool
 from cmrt.settings import Settings
 from service.errors import HttpError
-from service.simulations import SimulationPool
 from store import Repository
 from worker.executors import GenerationExecutor
 from worker.runner import JobRunner

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request
 
 from application import answers, library
+from application.simulations import SimulationBusyError
 from service import schemas
 from service.deps import (
     MAX_OFFSET,
@@ -18,7 +19,6 @@ from service.deps import (
 from service.errors import HttpError
 from service.openapi import error_responses
 from service.routers.simulations import RETRY_AFTER_S
-from service.simulations import SimulationBusyError
 from service.views import answer_out, cmrt_out
 
 router = APIRouter(prefix="/cmrts", tags=["library"])

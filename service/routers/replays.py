@@ -2,7 +2,7 @@
 (`sim.replay`, docs/replay.md) of a library CMRT on its own task, of a job's best candidate so
 far, or of a what-if clip; each with the clip without anticipation (flat spline) beside it.
 
-The clips are simulated in the API's simulation pool (`service.simulations.run_replay`), like
+The clips are simulated in the API's simulation pool (`application.simulations.run_replay`), like
 `POST /simulations`. 404: unknown id; 409: a job without a best candidate yet, a CMRT stored
 without its spec, or a stored candidate whose clip fails; 422: a bad body or parameter;
 503: every simulation process is busy.
@@ -23,6 +23,7 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 
 from application.jobs import stored_job_spec
+from application.simulations import SimulationBusyError, run_export, run_replay
 from optim.errors import ParamsError
 from optim.spline import check_params
 from service import schemas
@@ -32,7 +33,6 @@ from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.replay_page import render_replay, replay_csp
 from service.routers.simulations import RETRY_AFTER_S, _params
-from service.simulations import SimulationBusyError, run_export, run_replay
 from sim.errors import SpecError
 from sim.export import DEFAULT_FPS, MAX_FPS, MIN_FPS
 from sim.spec import TaskSpec, parse_spec

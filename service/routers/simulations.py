@@ -10,6 +10,7 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
 from application.characters import with_stored_character
+from application.simulations import SimulationBusyError
 from optim.errors import ParamsError
 from optim.spline import check_params
 from service import schemas
@@ -17,7 +18,6 @@ from service.body import read_model
 from service.deps import ServicesDep, url_for
 from service.errors import HttpError
 from service.openapi import error_responses, json_body
-from service.simulations import SimulationBusyError
 from store import NotFound
 
 router = APIRouter(prefix="/simulations", tags=["simulations"])

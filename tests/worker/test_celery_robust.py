@@ -14,10 +14,10 @@ import pytest
 from proc_helpers import stop_group
 
 from application import answers
+from application.simulations import run_clip
 from cmrt.settings import Settings
 from optim.executors import SerialExecutor
 from optim.run import optimize
-from service.simulations import run_clip
 from sim.spec import parse_canonical
 from store import open_repository
 from store.records import STOPPED

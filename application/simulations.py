@@ -19,9 +19,12 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
-from optim.procpool import SlotPool, TimeLimitError, WorkerDiedError
+from optim.objective import SimObjective
+from optim.procpool import SIMULATOR_PRELOAD, SlotPool, TimeLimitError, WorkerDiedError
+from optim.spline import decode
 from sim.errors import SimError
-from worker.fairpool import FORKSERVER_PRELOAD
+from sim.export import export_text
+from sim.replay import ReplayClip, build_replay
 
 log = logging.getLogger("cmrt.service.simulations")
 
@@ -54,8 +57,6 @@ def run_clip(spec_data: dict[str, Any], params: list[float] | None, traces: bool
              frames: bool) -> dict[str, Any]:
     """Simulate one clip (in a pool process): `{"status": "done", ...outcome}` or
     `{"status": "failed", "error": ...}` when the simulator refuses or diverges."""
-    from optim.objective import SimObjective
-
     try:
         ev = SimObjective(spec_data).evaluation(params, traces=traces or frames)
     except CLIP_FAILURES as err:
@@ -75,10 +76,6 @@ def run_replay(spec_data: dict[str, Any], params: list[float] | None,
     """Simulate a clip for replay (in a pool process), recorded at the frame rate:
     `{"status": "done", "replay": <sim.replay document>}`, or `failed` as `run_clip`. With
     `params` and `compare`, the flat-spline clip (no anticipation) comes first, beside it."""
-    from optim.objective import SimObjective
-    from optim.spline import decode
-    from sim.replay import ReplayClip, build_replay
-
     obj = SimObjective(spec_data)
     spec = obj.spec
     clips = []
@@ -99,9 +96,6 @@ def run_export(spec_data: dict[str, Any], params: list[float], fmt: str, fps: fl
     """Simulate the clip of `params` (in a pool process) and write its motion as `fmt` ("bvh"
     or "csv", `sim.export`) at `fps`: `{"status": "done", "text": ...}`, or `failed` as
     `run_clip`."""
-    from optim.objective import SimObjective
-    from sim.export import export_text
-
     obj = SimObjective(spec_data)
     try:
         ev = obj.evaluation(params, traces=True)
@@ -132,7 +126,7 @@ class SimulationPool:
                 # has imported the simulator, like the evaluation pool's: a clip's process
                 # killed past its time limit is replaced in a fraction of a second
                 self._pool = SlotPool(self.workers, start_method="forkserver",
-                                      preload=FORKSERVER_PRELOAD, time_limit=self.time_limit)
+                                      preload=SIMULATOR_PRELOAD, time_limit=self.time_limit)
             return self._pool
 
     def pids(self) -> list[int]:
