@@ -72,6 +72,22 @@ def url_for(request: Request, name: str, **params: Any) -> str:
     return f"{base.rstrip('/')}{path}" if base else path
 
 
+class RequestLinks:
+    """`application.simulations.Links` of a request: the URLs of a library CMRT and a job as
+    `url_for` builds them."""
+
+    def __init__(self, request: Request) -> None:
+        self._request = request
+
+    def cmrt(self, cmrt_id: str) -> str:
+        """The URL of library CMRT `cmrt_id` (GET /cmrts/{id})."""
+        return url_for(self._request, "get_cmrt", cmrt_id=cmrt_id)
+
+    def job(self, job_id: str) -> str:
+        """The URL of job `job_id` (GET /jobs/{id})."""
+        return url_for(self._request, "get_job", job_id=job_id)
+
+
 #: Largest `offset` of a listing and `after` of a generation poll: far below what an SQL
 #: integer holds (2^63 - 1), far above any real listing.
 MAX_OFFSET = 10**9

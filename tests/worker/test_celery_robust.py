@@ -14,8 +14,8 @@ import pytest
 from proc_helpers import stop_group
 
 from application import answers
-from application.simulations import run_clip
 from cmrt.settings import Settings
+from optim.clips import run_clip
 from optim.executors import SerialExecutor
 from optim.run import optimize
 from sim.spec import parse_canonical
