@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from cmrt.cmdline import (
+    EXIT_BAD_INPUT,
     die,
     positive_int,
     process_settings,
@@ -518,11 +519,13 @@ def _add_service_commands(sub: Any) -> None:
 
 
 def _domain_errors() -> tuple[type[Exception], ...]:
-    """`SimError` and `OptimError`, of those of their modules the command has imported: an
-    error of a module never imported cannot have been raised, and importing `sim.errors` here
-    would load the simulator (the `sim` package, numba) into every client command."""
+    """`ApplicationError`, `SimError` and `OptimError`, of those of their modules the command
+    has imported: an error of a module never imported cannot have been raised, and importing
+    `sim.errors` here would load the simulator (the `sim` package, numba) into every client
+    command."""
     found = []
-    for module, name in (("sim.errors", "SimError"), ("optim.errors", "OptimError")):
+    for module, name in (("application.errors", "ApplicationError"),
+                         ("sim.errors", "SimError"), ("optim.errors", "OptimError")):
         if module in sys.modules:
             found.append(getattr(sys.modules[module], name))
     return tuple(found)
@@ -535,7 +538,9 @@ def main(argv: list[str] | None = None) -> int:
         with terminate_like_interrupt():
             return int(args.func(args) or 0)
     except _domain_errors() as err:  # evaluated once an error is raised: after the command
-        return die(str(err))
+        # an application error carries its own exit status (75: busy, retry later); the
+        # domain's refusals are bad input
+        return die(str(err), getattr(err, "exit_code", EXIT_BAD_INPUT))
     except FileNotFoundError as err:
         return die(f"{err.filename}: no such file")
     except KeyboardInterrupt:

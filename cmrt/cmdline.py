@@ -20,10 +20,10 @@ from typing import Any
 EXIT_BAD_INPUT = 2
 
 
-def die(msg: str) -> int:
-    """Print `cmrt: error: MSG` on stderr and return the bad-input exit status."""
+def die(msg: str, code: int = EXIT_BAD_INPUT) -> int:
+    """Print `cmrt: error: MSG` on stderr and return the exit status `code` (bad input)."""
     print(f"cmrt: error: {msg}", file=sys.stderr)
-    return EXIT_BAD_INPUT
+    return code
 
 
 def positive_int(text: str) -> int:

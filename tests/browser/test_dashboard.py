@@ -165,6 +165,7 @@ def test_library_page(server, page):
                 "document.getElementById('interp-answer').dataset.verdict)",
           timeout_ms=120_000)
     verified = page.locator("#interp-answer").text_content()
+    assert page.locator("#interp-answer").get_attribute("data-verdict") != "error", verified
     assert "verdict: " in verified and "(simulated now)" in verified, verified
     page.click("#verify")
     _wait(page, "document.getElementById('interp-answer').textContent"

@@ -24,7 +24,7 @@ def test_pd_clip_is_the_direct_rollout(client, controller):
 # The API names the field as the spec's author wrote it, as sim.parse_spec (the CLI) does:
 # pydantic's union tag (spec.controller.pd_world.k2) is not in the path.
 @pytest.mark.parametrize(("controller", "needle"), [
-    ({"type": "pd"}, "spec.controller: must be a mapping whose `type` (default momentum) is "
+    ({"type": "pd"}, "spec.controller: must be a mapping whose `type` is "
                      "one of momentum, pd_parent, pd_world"),
     ({"type": "pd_world", "k2": -1.0}, "spec.controller.k2: must be from 0.001 to 1000"),
     ({"type": "momentum", "stepping": True, "response_delay": -1},

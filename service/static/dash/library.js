@@ -180,6 +180,10 @@
       }, uPlot.join([[out.curve.t, out.curve.dx], ...ns.map(d => [d.curve.t, d.curve.dx])]));
     } catch (e) {
       note.textContent = "no preview: " + e.message;
+      // the answer line says the request failed instead of "simulating…" forever
+      said.textContent = "no answer: " + e.message;
+      said.dataset.verdict = "error";
+      said.className = "small error";
       clear(box);
     }
   }
