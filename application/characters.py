@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from application import errors
-from sim.character import Character, parse_character, shipped_characters
+from sim.character import Character, parse_character, shipped_characters, shipped_definition
 from sim.errors import CharacterError
 from store import CharacterRecord, Conflict, NotFound, Repository
 
@@ -81,5 +81,25 @@ def with_stored_character(repo: Repository, spec: Any) -> Any:
     return {**spec, "character": {**character, "definition": record.definition}}
 
 
+def request_with_stored_character(repo: Repository, data: Any) -> Any:
+    """A request's raw body with the definition of the stored character its `spec` names put
+    in (`with_stored_character`); any other body as it is (the request's model says what is
+    wrong with it)."""
+    if isinstance(data, dict) and "spec" in data:
+        return {**data, "spec": with_stored_character(repo, data["spec"])}
+    return data
+
+
+def shipped_names() -> list[str]:
+    """The names of the characters shipped with the simulator."""
+    return shipped_characters()
+
+
+def shipped(name: str) -> dict[str, Any] | None:
+    """The definition of the shipped character `name`, or None when no shipped one has it."""
+    return shipped_definition(name) if name in shipped_characters() else None
+
+
 __all__ = ["NAME_PATTERN", "CharacterNameTakenError", "InvalidCharacterError",
-           "add_character", "check_definition", "summary", "with_stored_character"]
+           "add_character", "check_definition", "request_with_stored_character", "shipped",
+           "shipped_names", "summary", "with_stored_character"]

@@ -2,7 +2,8 @@
 
 Used by the command line (`optim.executors.PoolExecutor`), the embedded service's evaluation
 pool (`worker.fairpool.FairPool`) and the API's what-if simulations
-(`service.simulations.SimulationPool`).
+(`application.simulations.SimulationPool`); the last two start their slots from a fork server
+that has imported `SIMULATOR_PRELOAD`.
 
 `SlotPool(workers)` keeps `workers` single-process slots, each its own one-process
 `concurrent.futures.ProcessPoolExecutor`, so that one slot can be killed (a time limit, a
@@ -60,6 +61,11 @@ from optim.rankcut import bound_for_last
 PARENT_WATCH_S = 0.5
 #: Longest wait between two `check()` calls in `run`, and the time limits' resolution, s.
 POLL_S = 0.1
+#: What a fork server imports before it forks slot processes (`set_forkserver_preload`): the
+#: simulator, and `optim.slotwarm`, whose one tiny simulation loads its compiled code, so a slot
+#: killed past its time limit is replaced in a fraction of a second.
+SIMULATOR_PRELOAD = ("numpy", "optim.objective", "optim.spline", "sim.rollout", "optim.procpool",
+                     "optim.slotwarm")
 
 OnResult = Callable[[int, "EvalOutcome | EvaluationError"], None]
 
@@ -526,6 +532,7 @@ class SlotPool:
 __all__ = [
     "PARENT_WATCH_S",
     "POLL_S",
+    "SIMULATOR_PRELOAD",
     "DroppedError",
     "SlotPool",
     "SlotTask",

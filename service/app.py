@@ -20,6 +20,7 @@ from typing import Any
 from fastapi import Depends, FastAPI
 from fastapi.staticfiles import StaticFiles
 
+from application.simulations import SimulationPool
 from cmrt.settings import Settings, get_settings
 from service.deps import Services, no_nul
 from service.errors import install_error_handlers
@@ -38,7 +39,6 @@ from service.routers import (
     simulations,
 )
 from service.security import HttpEdge
-from service.simulations import SimulationPool
 from store import Repository, open_repository
 from worker.executors import GenerationExecutor, make_generation_executor
 from worker.runner import JobRunner

@@ -15,9 +15,9 @@ from typing import Annotated, Any
 
 from fastapi import Depends, Request
 
+from application.simulations import SimulationPool
 from cmrt.settings import Settings
 from service.errors import HttpError
-from service.simulations import SimulationPool
 from store import Repository
 from worker.executors import GenerationExecutor
 from worker.runner import JobRunner
@@ -71,6 +71,22 @@ def url_for(request: Request, name: str, **params: Any) -> str:
     path = str(request.app.url_path_for(name, **params))
     base = request.app.state.services.settings.public_url
     return f"{base.rstrip('/')}{path}" if base else path
+
+
+class RequestLinks:
+    """`application.simulations.Links` of a request: the URLs of a library CMRT and a job as
+    `url_for` builds them."""
+
+    def __init__(self, request: Request) -> None:
+        self._request = request
+
+    def cmrt(self, cmrt_id: str) -> str:
+        """The URL of library CMRT `cmrt_id` (GET /cmrts/{id})."""
+        return url_for(self._request, "get_cmrt", cmrt_id=cmrt_id)
+
+    def job(self, job_id: str) -> str:
+        """The URL of job `job_id` (GET /jobs/{id})."""
+        return url_for(self._request, "get_job", job_id=job_id)
 
 
 #: Largest `offset` of a listing and `after` of a generation poll: far below what an SQL

@@ -6,17 +6,24 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from application.families import FamilySpec
 from application.jobs import TaskSpec
+from application.simulations import (
+    MAX_CMRT_PARAMS,
+    CmrtChoice,
+    InlineCmrt,
+    JobBestCmrt,
+    LibraryCmrtRef,
+    ReplayRequest,
+    SimulationRequest,
+)
 from cmrt.defaults import DEFAULT_SEED
 from service.links import SIGNABLE
 
-__all__ = ["FamilySpec", "TaskSpec"]
-
-#: Longest inline CMRT parameter vector accepted (3 per knot, at most 16 knots).
-MAX_CMRT_PARAMS = 48
+__all__ = ["MAX_CMRT_PARAMS", "CmrtChoice", "FamilySpec", "InlineCmrt", "JobBestCmrt",
+           "LibraryCmrtRef", "ReplayRequest", "SimulationRequest", "TaskSpec"]
 
 
 #: The example body of `POST /jobs` in the OpenAPI document (examples/fast_bend.yaml's task;
@@ -526,47 +533,7 @@ class Health(BaseModel):
     detail: str | None = Field(None, description="what is unreachable (degraded only)")
 
 
-# ---- what-if simulations ------------------------------------------------------------------
-class LibraryCmrtRef(BaseModel):
-    """A CMRT of the library, by id."""
-
-    model_config = ConfigDict(extra="forbid")
-    source: Literal["library"]
-    id: Annotated[str, Field(min_length=1, max_length=64)]
-
-
-class JobBestCmrt(BaseModel):
-    """The best candidate a job has found so far (or finished with)."""
-
-    model_config = ConfigDict(extra="forbid")
-    source: Literal["job"]
-    id: Annotated[str, Field(min_length=1, max_length=64)]
-
-
-class InlineCmrt(BaseModel):
-    """Spline parameters given inline (the spec's `cmrt` parameterisation, values in [0, 1])."""
-
-    model_config = ConfigDict(extra="forbid")
-    source: Literal["params"]
-    params: Annotated[list[Annotated[float, Field(strict=True, allow_inf_nan=False)]],
-                      Field(min_length=1, max_length=MAX_CMRT_PARAMS)]
-
-
-CmrtChoice = Annotated[LibraryCmrtRef | JobBestCmrt | InlineCmrt, Field(discriminator="source")]
-
-
-class SimulationRequest(BaseModel):
-    """One clip of `spec`, with the CMRT `cmrt` (null or absent: no anticipation)."""
-
-    model_config = ConfigDict(extra="forbid")
-    spec: TaskSpec
-    cmrt: CmrtChoice | None = None
-    traces: bool = Field(True, strict=True,
-                         description="include the 1 kHz traces (t, cp, support, cm, ...)")
-    frames: bool = Field(False, strict=True,
-                         description="include the 100 Hz replay frames (body poses)")
-
-
+# ---- what-if simulations (the request models are application.simulations') -------------
 class SimulationOut(BaseModel):
     """`status` "done" with the outcome, or "failed" with `error` (the simulation diverged, its
     process died, or it ran past the time limit)."""
@@ -598,17 +565,6 @@ SIMULATION_EXAMPLE: dict[str, Any] = {"spec": JOB_EXAMPLE, "cmrt": None, "traces
 
 
 # ---- replays (service.routers.replays; the document is sim.replay's, docs/replay.md) ----------
-class ReplayRequest(BaseModel):
-    """A replay of one clip of `spec` with the CMRT `cmrt` (null: no anticipation only); with a
-    CMRT and `compare` (the default), the flat-spline clip is simulated beside it."""
-
-    model_config = ConfigDict(extra="forbid")
-    spec: TaskSpec
-    cmrt: CmrtChoice | None = None
-    compare: bool = Field(True, strict=True,
-                          description="add the clip without anticipation (flat spline)")
-
-
 class ReplayOut(BaseModel):
     """A replay document, schema `cmrt-replay/1` (docs/replay.md): the character's shapes to
     scale, the props, and per clip the 100 Hz poses, CM, CM reference, CP, support and plot
@@ -638,6 +594,16 @@ class LinkRequest(BaseModel):
                                   "`/jobs/{id}/motion.csv` of an existing job (id: 1-64 of "
                                   "A-Z a-z 0-9 . _ ~ -)",
                       json_schema_extra={"pattern": f"^(?:{SIGNABLE.pattern})$"})
+
+    @field_validator("path")
+    @classmethod
+    def _signable(cls, path: str) -> str:
+        # said in words: the pattern in the schema would read as a regular expression
+        if not SIGNABLE.fullmatch(path):
+            raise ValueError("must be a replay page, /jobs/{id}/replay or /cmrts/{id}/replay, "
+                             "or a job's motion file, /jobs/{id}/motion.bvh or .csv (id: 1-64 "
+                             "of A-Z a-z 0-9 . _ ~ -)")
+        return path
 
 
 class LinkOut(BaseModel):

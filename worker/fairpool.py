@@ -2,9 +2,10 @@
 shared fairly by jobs, whose running candidates can be dropped.
 
 `FairPool(workers)` is a `SlotPool` of `workers` slots started from a fork server that has
-imported the simulator (`FORKSERVER_PRELOAD`), whose processes ignore group signals (SIGINT,
-SIGTERM: Ctrl-C or `kill -- -PGID` stops the server, which ends its slots; it never looks like a
-crash) and exit within `optim.procpool.PARENT_WATCH_S` once the server is gone.
+imported the simulator (`optim.procpool.SIMULATOR_PRELOAD`), whose processes ignore group
+signals (SIGINT, SIGTERM: Ctrl-C or `kill -- -PGID` stops the server, which ends its slots; it
+never looks like a crash) and exit within `optim.procpool.PARENT_WATCH_S` once the server is
+gone.
 `run(job, fn, batch, check, on_result)` queues the job's candidates; whenever a slot is free the
 next candidate is taken round robin over the jobs that have some queued (a job not served yet
 first), so a small job sent after a huge one starts as soon as one running candidate ends.
@@ -30,13 +31,11 @@ from typing import Any
 
 import numpy as np
 
-from optim.procpool import POLL_S, OnResult, SlotPool
+from optim.procpool import POLL_S, SIMULATOR_PRELOAD, OnResult, SlotPool
 
 #: Start method of the slot processes: a fork server (started like "spawn", so no thread or
-#: ODE state of the server is inherited) that has imported `FORKSERVER_PRELOAD`.
+#: ODE state of the server is inherited) that has imported `SIMULATOR_PRELOAD`.
 DEFAULT_SLOT_START_METHOD = "forkserver"
-FORKSERVER_PRELOAD = ("numpy", "optim.objective", "optim.spline", "sim.rollout", "optim.procpool",
-                      "worker.slotwarm")
 
 
 class FairPool(SlotPool):
@@ -44,7 +43,7 @@ class FairPool(SlotPool):
 
     def __init__(self, workers: int, *, time_limit: float | None = None,
                  start_method: str = DEFAULT_SLOT_START_METHOD) -> None:
-        super().__init__(workers, start_method=start_method, preload=FORKSERVER_PRELOAD,
+        super().__init__(workers, start_method=start_method, preload=SIMULATOR_PRELOAD,
                          time_limit=time_limit, ignore_signals=True)
 
     def run(self, job: str, fn: Any, batch: Sequence[np.ndarray],  # type: ignore[override]

@@ -12,9 +12,7 @@ from application import characters as app_characters
 from service import schemas
 from service.body import read_model
 from service.deps import MAX_OFFSET, RepoDep, SettingsDep, url_for
-from service.errors import HttpError
 from service.openapi import error_responses, json_body
-from sim.character import shipped_characters, shipped_definition
 from store import CharacterRecord
 
 router = APIRouter(prefix="/characters", tags=["characters"])
@@ -41,12 +39,7 @@ async def add_character(request: Request, repo: RepoDep, settings: SettingsDep
     409 when a shipped or stored character has the name. A spec then names it as its
     `character.model`, and the job it makes holds the definition."""
     req = await read_model(request, schemas.CharacterRequest, settings.max_body_bytes)
-    try:
-        rec = app_characters.add_character(repo, req.name, req.definition)
-    except app_characters.CharacterNameTakenError as err:
-        raise HttpError(409, str(err)) from None
-    except app_characters.InvalidCharacterError as err:
-        raise HttpError(422, str(err)) from None
+    rec = app_characters.add_character(repo, req.name, req.definition)
     body = schemas.CharacterOut.model_validate(_stored_out(rec, request, definition=True))
     return JSONResponse(body.model_dump(mode="json"), status_code=201,
                         headers={"Location": body.url})
@@ -65,7 +58,7 @@ def list_characters(
     items, total = repo.list_characters(limit=limit, offset=offset)
     return {"items": [_stored_out(r, request, definition=False) for r in items],
             "total": total, "limit": limit, "offset": offset,
-            "shipped": shipped_characters()}
+            "shipped": app_characters.shipped_names()}
 
 
 @router.get("/{character_name}", response_model=schemas.CharacterOut, summary="One character",
@@ -73,8 +66,8 @@ def list_characters(
 def get_character(character_name: CharacterName, request: Request, repo: RepoDep) -> dict[str, Any]:
     """A stored character with its definition, or a shipped one's (a start for your own)."""
     name = character_name
-    if name in shipped_characters():
-        definition = shipped_definition(name)
+    definition = app_characters.shipped(name)
+    if definition is not None:
         return {"name": name, "url": url_for(request, "get_character", character_name=name),
                 "source": "shipped", "summary": app_characters.summary(name, definition),
                 "definition": definition}

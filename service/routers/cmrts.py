@@ -15,10 +15,7 @@ from service.deps import (
     ServicesDep,
     task_parameters_doc,
 )
-from service.errors import HttpError
 from service.openapi import error_responses
-from service.routers.simulations import RETRY_AFTER_S
-from service.simulations import SimulationBusyError
 from service.views import answer_out, cmrt_out
 
 router = APIRouter(prefix="/cmrts", tags=["library"])
@@ -85,13 +82,9 @@ def interpolate_cmrt(
     Outside the stored range only with `extrapolate=true`. With several parameters, `along`
     names the interpolated one and the others must match exactly."""
     query = answers.LibraryQuery(family, params, along, extrapolate)
+    # every simulation process busy: application.simulations.SimulationBusyError, a 503
     simulate = svc.simulations.simulate if verify else None
-    try:
-        a = answers.serve(svc.repo, query, simulate)
-    except SimulationBusyError:
-        raise HttpError(503, "verify: every simulation process is busy; retry later",
-                       headers={"Retry-After": str(RETRY_AFTER_S)}) from None
-    return answer_out(a, request)
+    return answer_out(answers.serve(svc.repo, query, simulate), request)
 
 
 @router.get("/{cmrt_id}", summary="One CMRT with its curve", response_model=schemas.CmrtOut,

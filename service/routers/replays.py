@@ -2,43 +2,33 @@
 (`sim.replay`, docs/replay.md) of a library CMRT on its own task, of a job's best candidate so
 far, or of a what-if clip; each with the clip without anticipation (flat spline) beside it.
 
-The clips are simulated in the API's simulation pool (`service.simulations.run_replay`), like
-`POST /simulations`. 404: unknown id; 409: a job without a best candidate yet, a CMRT stored
-without its spec, or a stored candidate whose clip fails; 422: a bad body or parameter;
-503: every simulation process is busy.
+The clips are simulated in the API's simulation pool (`application.simulations`: `replay_cmrt`,
+`replay_job`, `replay_whatif`), like `POST /simulations`. 404: unknown id; 409: a job without a
+best candidate yet, a CMRT stored without its spec, or a stored candidate whose clip fails; 422:
+a bad body or parameter; 503: every simulation process is busy.
 
 A job's motion files, `GET /jobs/{id}/motion.bvh` and `.csv` (`sim.export`, docs/export.md):
-the best candidate so far simulated once in the same pool (`run_export`) and written at
-`?fps=` (default 60, 1-1000); 404 while the job has no candidate (there is no motion yet).
+the best candidate so far simulated once in the same pool (`application.simulations.job_motion`)
+and written at `?fps=` (default 60, 1-1000); 404 while the job has no candidate (there is no
+motion yet).
 """
 
 from __future__ import annotations
 
-import logging
-import re
-from collections.abc import Callable
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 
-from application.jobs import stored_job_spec
-from optim.errors import ParamsError
-from optim.spline import check_params
+from application import simulations
+from application.simulations import DEFAULT_FPS, MAX_FPS, MIN_FPS
 from service import schemas
 from service.body import read_model
-from service.deps import ServicesDep, url_for
-from service.errors import HttpError
+from service.deps import RequestLinks, ServicesDep
 from service.openapi import error_responses, json_body
 from service.replay_page import render_replay, replay_csp
-from service.routers.simulations import RETRY_AFTER_S, _params
-from service.simulations import SimulationBusyError, run_export, run_replay
-from sim.errors import SpecError
-from sim.export import DEFAULT_FPS, MAX_FPS, MIN_FPS
-from sim.spec import TaskSpec, parse_spec
 
 router = APIRouter(tags=["replays"])
-log = logging.getLogger("cmrt.service.replays")
 
 Compare = Annotated[bool, Query(description="also the clip without anticipation (flat "
                                             "spline), on the same timeline")]
@@ -57,84 +47,28 @@ _HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}},
                "description": "The self-contained replay page (player, data and uPlot inline)"}}
 
 
-async def _document(svc: Any, spec_data: dict[str, Any], params: list[float] | None,
-                    about: dict[str, Any] | None, compare: bool, failed_status: int
-                    ) -> dict[str, Any]:
-    out = await _simulated(svc, "replay", failed_status, run_replay, spec_data, params, about,
-                           compare)
-    return out["replay"]
-
-
-def _stored(load: Callable[[], TaskSpec], document: dict[str, Any], params: Any, what: str
-            ) -> tuple[dict[str, Any], list[float]]:
-    """A stored spec (its typed form from `load`) and parameter vector, checked (409 when they
-    no longer fit); the stored document (the canonical dump of the spec) goes to the
-    simulation pool as it is."""
-    try:
-        checked = check_params(load(), params)
-    except (SpecError, ParamsError) as err:
-        raise HttpError(409, f"{what}: cannot be replayed ({err})") from None
-    return document, [float(v) for v in checked]
-
-
 async def _cmrt_doc(cmrt_id: str, request: Request, svc: Any, compare: bool) -> dict[str, Any]:
-    rec = svc.repo.get_cmrt(cmrt_id)  # store.NotFound: 404
-    if rec.spec is None:
-        raise HttpError(409, f"cmrt {cmrt_id!r}: stored without its task spec; it cannot be "
-                            "replayed on its own task")
-    what = f"cmrt {cmrt_id!r}"
-    spec, params = _stored(lambda: parse_spec(rec.spec, what), rec.spec, rec.params, what)
-    about = {"source": "library", "id": rec.id, "objective": rec.objective,
-             "url": url_for(request, "get_cmrt", cmrt_id=rec.id)}
-    return await _document(svc, spec, params, about, compare, 409)
+    return await simulations.replay_cmrt(svc.repo, svc.simulations, RequestLinks(request),
+                                         cmrt_id, compare)
 
 
 async def _job_doc(job_id: str, request: Request, svc: Any, compare: bool) -> dict[str, Any]:
-    job = svc.repo.get_job(job_id)  # store.NotFound: 404
-    if job.best_params is None:
-        raise HttpError(409, f"job {job_id!r}: no best candidate yet ({job.status})")
-    # the job's spec by its hash: parsed once per process, not at every replay
-    spec, params = _stored(lambda: stored_job_spec(job).spec, job.spec, job.best_params,
-                           f"job {job_id!r}")
-    about = {"source": "job", "id": job.id, "job_status": job.status,
-             "job_objective": job.best_objective,
-             "url": url_for(request, "get_job", job_id=job.id)}
-    return await _document(svc, spec, params, about, compare, 409)
-
-
-async def _simulated(svc: Any, what: str, failed_status: int, fn: Any, *args: Any
-                     ) -> dict[str, Any]:
-    """`fn(*args)` in the simulation pool: its `done` answer, or 503 (every process busy) or
-    `failed_status` naming `what` failed and why."""
-    try:
-        out = await svc.simulations.call(fn, *args)
-    except SimulationBusyError:
-        raise HttpError(503, "simulations: every simulation process is busy; retry later",
-                       headers={"Retry-After": str(RETRY_AFTER_S)}) from None
-    if out["status"] != "done":
-        raise HttpError(failed_status, f"{what}: the simulation failed ({out['error']})")
-    return out
-
-
-async def _job_motion(job_id: str, svc: Any, fmt: str, fps: float) -> Response:
-    """The job's best candidate's clip as a motion file (404 while it has none)."""
-    job = svc.repo.get_job(job_id)  # store.NotFound: 404
-    if job.best_params is None:
-        raise HttpError(404, f"job {job_id!r}: no best candidate yet ({job.status}); its "
-                             "motion exists once a candidate has been evaluated")
-    spec, params = _stored(lambda: stored_job_spec(job).spec, job.spec, job.best_params,
-                           f"job {job_id!r}")
-    out = await _simulated(svc, "motion", 409, run_export, spec, params, fmt, fps)
-    name = re.sub(r"[^A-Za-z0-9_.-]", "_", str(job.name or "job"))[:64]
-    return Response(out["text"], media_type=_MOTION[fmt][0], headers={
-        "content-disposition": f'attachment; filename="{name}-{job.id}.{fmt}"'})
+    return await simulations.replay_job(svc.repo, svc.simulations, RequestLinks(request),
+                                        job_id, compare)
 
 
 async def _simulation_doc(request: Request, svc: Any) -> dict[str, Any]:
     req = await read_model(request, schemas.ReplayRequest, svc.settings.max_body_bytes)
-    params, about = _params(svc, request, req)
-    return await _document(svc, req.spec.model_dump(mode="json"), params, about, req.compare,
-                           422)
+    return await simulations.replay_whatif(svc.repo, svc.simulations, RequestLinks(request),
+                                           req)
+
+
+async def _job_motion(job_id: str, svc: Any, fmt: Literal["bvh", "csv"], fps: float
+                      ) -> Response:
+    """The job's best candidate's clip as a motion file (404 while it has none)."""
+    motion = await simulations.job_motion(svc.repo, svc.simulations, job_id, fmt, fps)
+    return Response(motion.text, media_type=_MOTION[fmt][0], headers={
+        "content-disposition": f'attachment; filename="{motion.filename}"'})
 
 
 def _html(doc: dict[str, Any]) -> HTMLResponse:

@@ -11,7 +11,7 @@ import yaml
 
 from application import answers
 from application.library import library_entry
-from service.simulations import run_clip
+from optim.clips import run_clip
 from sim.spec import parse_spec
 from store import open_repository
 

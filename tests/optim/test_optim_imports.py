@@ -27,6 +27,7 @@ MODULES = (
     "optim.family.machine",
     "optim.family_run",
     "optim.sweep",
+    "optim.clips",
 )
 
 

@@ -150,7 +150,7 @@ def test_pool_processes_end_with_a_killed_api(tmp_path):
     import sys
 
     code = ("import asyncio, os, sys, time\n"
-            "from service.simulations import SimulationPool\n"
+            "from application.simulations import SimulationPool\n"
             "pool = SimulationPool(1)\n"
             "spec = {'name': 'q', 'family': 's', 'task': {'type': 'quiet_stance'},\n"
             "        'clip': {'preparation': 0.2, 'duration': 0.3, 'decay': 0.2}}\n"

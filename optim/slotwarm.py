@@ -1,4 +1,4 @@
-"""Imported by the local pool's fork server (worker.fairpool.FORKSERVER_PRELOAD): one tiny
+"""Imported by the slot pools' fork servers (optim.procpool.SIMULATOR_PRELOAD): one tiny
 simulation loads the simulator's compiled (numba-cached) code into the fork server, so every
 slot process forked from it starts with it loaded (a killed slot's successor is ready in
 about a tenth of a second instead of seconds)."""
