@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from application.errors import InvalidRequest
+from application.errors import InvalidRequest, Missing
 from application.library import library_members
 from optim.cmaes import MIN_DIMENSION
 from optim.errors import BasisError
@@ -58,12 +58,15 @@ def store_basis(repo: Repository, basis: Basis, family: str, members: list[str])
 
 
 def build_library_basis(repo: Repository, family: str, k: int = DEFAULT_K) -> str:
-    """PCA basis of every library CMRT of `family`; stored, returns its id (BasisError when
-    the family has no CMRTs or too few to reduce)."""
+    """PCA basis of every library CMRT of `family`; stored, returns its id (Missing when the
+    family has no library CMRTs, InvalidRequest when too few to reduce)."""
     members = library_members(repo, family)
     if not members:
-        raise BasisError(f"no library CMRTs of family {family!r}")
-    basis = build_basis(members, k=k, family=family)
+        raise Missing(f"family: no library CMRTs of family {family!r}")
+    try:
+        basis = build_basis(members, k=k, family=family)
+    except BasisError as err:
+        raise InvalidRequest(str(err)) from None
     return store_basis(repo, basis, family, [m.name for m in members])
 
 

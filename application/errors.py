@@ -9,7 +9,10 @@ error into one of these, its message naming the field and the rule (`field: rule
 
 from __future__ import annotations
 
-from typing import ClassVar
+from collections.abc import Iterable, Mapping
+from typing import Any, ClassVar
+
+from sim.spec import error_location
 
 #: The command line's exit status for input it refuses (argparse's own).
 EXIT_BAD_INPUT = 2
@@ -58,5 +61,16 @@ class Busy(ApplicationError):  # noqa: N818
         self.retry_after = retry_after
 
 
+def validation_message(errors: Iterable[Mapping[str, Any]], drop: tuple[str, ...] = ()) -> str:
+    """One line naming each failing field (as a spec's author wrote it: `sim.spec.
+    error_location`) and its rule, from pydantic's `errors()` list; the parts of a path in
+    `drop` (an edge's `body`, `query`) are left out."""
+    parts = []
+    for e in errors:
+        loc = ".".join(str(p) for p in error_location(e["loc"]) if p not in drop)
+        parts.append(f"{loc or 'body'}: {e['msg'].removeprefix('Value error, ')}")
+    return "; ".join(parts)
+
+
 __all__ = ["EXIT_BAD_INPUT", "EXIT_TEMPORARY", "ApplicationError", "Busy", "InvalidRequest",
-           "Missing", "RequestConflict"]
+           "Missing", "RequestConflict", "validation_message"]

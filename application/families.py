@@ -11,21 +11,29 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from application import admission
+from application.characters import with_stored_character
+from application.errors import InvalidRequest
 from cmrt.canonical import document_hash
 from cmrt.settings import Settings
 from optim.family.plan import PROBES, PlannedRun, plan_runs
-from optim.family.spec import FamilySpec, parse_family
+from optim.family.spec import FamilyError, FamilySpec, parse_family
 from optim.objective import SPECS
 from store import FamilyRecord, Repository
 
 
 def submit_family(repo: Repository, settings: Settings, data: Any
                   ) -> tuple[FamilyRecord, admission.Budget, int]:
-    """Validate a family request (`optim.family.spec.FamilyError`), admit it
-    (`admission.BudgetExceeded`) and store it; returns the family, its budget and the number
-    of runs of its plan."""
-    fs = parse_family(data)
-    budget = admission.family_budget(fs, settings)
+    """Validate a family request as it arrived (a parsed JSON body; a stored character its
+    spec names put in first), admit it and store it; returns the family, its budget and the
+    number of runs of its plan. InvalidRequest naming the field and the rule
+    (`admission.BudgetExceeded` above the job ceiling)."""
+    if isinstance(data, dict) and "spec" in data:
+        data = {**data, "spec": with_stored_character(repo, data["spec"])}
+    try:
+        fs = parse_family(data)
+        budget = admission.family_budget(fs, settings)
+    except FamilyError as err:
+        raise InvalidRequest(str(err)) from None
     doc = fs.to_dict()
     spec_hash = document_hash(doc)
     SPECS.typed(spec_hash, lambda: fs)  # the family drivers of this process find it parsed
@@ -90,4 +98,4 @@ def family_progress(repo: Repository, fam: FamilyRecord, *, job_url: Callable[[s
     }
 
 
-__all__ = ["family_progress", "family_spec", "submit_family"]
+__all__ = ["FamilySpec", "family_progress", "family_spec", "submit_family"]

@@ -106,16 +106,16 @@ def main(argv: list[str] | None = None) -> int:
                 ("domino task.mass 1e308", _example("domino", mass=1e308)),
                 ("domino task.distance 1e-30", _example("domino", distance=1e-30)),
                 ("push task.force 10^23 (integer)", _example("push", force=10**23))):
-            _row(rows, f"POST /jobs, {probe}", c.post("/jobs", json=spec, headers=AUTH))
+            _row(rows, f"POST /jobs, {probe}", c.post("/jobs", json={"spec": spec}, headers=AUTH))
         opt = _example("domino")
         opt["optimize"] = {"min_evaluations": 10**9, "window": 10**9, "threshold": 1e308}
         _row(rows, "POST /jobs, optimize min_evaluations/window 10^9, threshold 1e308",
-             c.post("/jobs", json=opt, headers=AUTH))
+             c.post("/jobs", json={"spec": opt}, headers=AUTH))
         _row(rows, "POST /simulations, domino task.mass 1e-12",
              c.post("/simulations", json={"spec": _example("domino", mass=1e-12)},
                     headers=AUTH))
         # a real job for the rest
-        job = c.post("/jobs", json=_example("fast_bend"), headers=AUTH).json()["id"]
+        job = c.post("/jobs", json={"spec": _example("fast_bend")}, headers=AUTH).json()["id"]
         # 3. HEAD
         _row(rows, "HEAD /health", c.head("/health"))
         _row(rows, "HEAD /jobs (token)", c.head("/jobs", headers=AUTH))
@@ -137,10 +137,11 @@ def main(argv: list[str] | None = None) -> int:
              c.post("/links", json={"path": "/jobs/nosuchjob/replay"}, headers=AUTH))
         # 6. display spoofing, undecodable bytes
         _row(rows, "POST /jobs, family 'bend\\u202e'",
-             c.post("/jobs", json={**_example("fast_bend"), "family": "bend\u202e"},
+             c.post("/jobs", json={"spec": {**_example("fast_bend"), "family": "bend\u202e"}},
                     headers=AUTH))
         _row(rows, "POST /jobs, name 'a\\u202eb'",
-             c.post("/jobs", json={**_example("fast_bend"), "name": "a\u202eb"}, headers=AUTH))
+             c.post("/jobs", json={"spec": {**_example("fast_bend"), "name": "a\u202eb"}},
+                    headers=AUTH))
         _row(rows, "GET /jobs/%FF%FE", c.get("/jobs/%FF%FE", headers=AUTH))
         # 7. the /links path pattern
         doc = c.get("/openapi.json").json()

@@ -64,7 +64,7 @@ def free_port() -> int:
 
 
 def submit(api: str, spec: dict) -> str:
-    r = httpx.post(f"{api}/jobs", json=spec, timeout=30)
+    r = httpx.post(f"{api}/jobs", json={"spec": spec}, timeout=30)
     r.raise_for_status()
     return r.json()["id"]
 

@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
                         "clip": {**base["clip"], "duration": d},
                         "optimize": {"popsize": 8, "max_evaluations": args.evaluations,
                                      "min_evaluations": 0}}
-                ids.append(srv.submit({"spec": spec, "seed": args.seed}))
+                ids.append(srv.submit(spec, seed=args.seed))
             t0 = time.monotonic()
             srv.wait(ids, timeout=3600)
             print(f"jobs finished in {time.monotonic() - t0:.0f} s")

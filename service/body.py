@@ -18,7 +18,8 @@ from typing import Any, TypeVar
 from fastapi import Request
 from pydantic import BaseModel, ValidationError
 
-from service.errors import HttpError, validation_message
+from application.errors import validation_message
+from service.errors import HttpError
 
 M = TypeVar("M", bound=BaseModel)
 

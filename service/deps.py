@@ -9,6 +9,7 @@ more on a busy one) for what is a dictionary lookup or a scan of the query strin
 from __future__ import annotations
 
 import math
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Annotated, Any
 
@@ -101,6 +102,17 @@ async def no_nul(request: Request) -> None:
     for k, v in request.query_params.multi_items():
         if "\x00" in k or "\x00" in v:
             raise HttpError(422, f"{k.replace(chr(0), '')}: the NUL character is not allowed")
+
+
+def refuse_query(*names: str) -> Callable[[Request], Awaitable[None]]:
+    """A dependency refusing the query parameters `names` (fields that belong in the body: a
+    request naming them in its query would see them silently ignored otherwise)."""
+    async def refuse(request: Request) -> None:
+        for name in names:
+            if name in request.query_params:
+                raise HttpError(422, f"{name}: query parameters are not accepted; send it in "
+                                     "the body")
+    return refuse
 
 
 #: Query keys of /cmrts and /cmrts/interpolate that are not task parameters.

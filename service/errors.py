@@ -17,8 +17,6 @@ safe. What the driver said goes to the log only (it may quote SQL or the databas
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
-from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -26,8 +24,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 
-from application.errors import ApplicationError, Busy
-from sim.spec import error_location
+from application.errors import ApplicationError, Busy, validation_message
 from store import NotFound
 
 log = logging.getLogger("cmrt.service.errors")
@@ -52,15 +49,6 @@ class HttpError(Exception):
         self.status = status
         self.detail = detail
         self.headers = headers
-
-
-def validation_message(errors: Iterable[Mapping[str, Any]], drop: tuple[str, ...] = ()) -> str:
-    """One line naming each failing field and its rule, from pydantic's `errors()` list."""
-    parts = []
-    for e in errors:
-        loc = ".".join(str(p) for p in error_location(e["loc"]) if p not in drop)
-        parts.append(f"{loc or 'body'}: {e['msg'].removeprefix('Value error, ')}")
-    return "; ".join(parts)
 
 
 def install_error_handlers(app: FastAPI) -> None:

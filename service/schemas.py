@@ -8,6 +8,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from application.families import FamilySpec
+from application.jobs import TaskSpec
 from application.simulations import (
     MAX_CMRT_PARAMS,
     CmrtChoice,
@@ -18,9 +20,7 @@ from application.simulations import (
     SimulationRequest,
 )
 from cmrt.defaults import DEFAULT_SEED
-from optim.family.spec import FamilySpec
 from service.links import SIGNABLE
-from sim.spec import TaskSpec
 
 __all__ = ["MAX_CMRT_PARAMS", "CmrtChoice", "FamilySpec", "InlineCmrt", "JobBestCmrt",
            "LibraryCmrtRef", "ReplayRequest", "SimulationRequest", "TaskSpec"]
@@ -65,8 +65,8 @@ class Problem(BaseModel):
 
 
 class JobRequest(BaseModel):
-    """A bare TaskSpec, or this envelope with a seed, a PCA basis to search in, and where the
-    search starts."""
+    """A job request: the task spec as `spec`, with a seed, a PCA basis to search in, and
+    where the search starts."""
 
     model_config = ConfigDict(extra="forbid")
     spec: TaskSpec

@@ -8,11 +8,9 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
 from application.bases import build_library_basis
-from optim.errors import BasisError
 from service import schemas
 from service.body import read_model
 from service.deps import MAX_OFFSET, RepoDep, SettingsDep
-from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from service.views import basis_out
 
@@ -21,14 +19,13 @@ router = APIRouter(prefix="/bases", tags=["library"])
 
 @router.post("", status_code=201, summary="Build a PCA basis", response_model=schemas.BasisOut,
              openapi_extra=json_body(schemas.BasisRequest, example=schemas.BASIS_EXAMPLE),
-             responses=error_responses(400, 413, 415, 422))
+             responses={**error_responses(400, 413, 415, 422),
+                        404: {"model": schemas.Problem,
+                              "description": "The family has no library CMRTs"}})
 async def create_basis(request: Request, repo: RepoDep, settings: SettingsDep) -> JSONResponse:
     """Body `{"family": "bend", "k": 3}`: PCA of the family's library CMRTs."""
     req = await read_model(request, schemas.BasisRequest, settings.max_body_bytes)
-    try:
-        basis_id = build_library_basis(repo, req.family, req.k)
-    except BasisError as err:
-        raise HttpError(422, str(err)) from None
+    basis_id = build_library_basis(repo, req.family, req.k)
     body = schemas.BasisOut.model_validate(basis_out(repo.get_basis(basis_id), request))
     return JSONResponse(body.model_dump(mode="json"), status_code=201,  # ISO 8601 times
                         headers={"Location": body.url})

@@ -9,13 +9,9 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
 from application import families as app_families
-from application.admission import BudgetExceeded
-from application.characters import with_stored_character
-from optim.family.spec import FamilyError
 from service import paper, schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
-from service.errors import HttpError
 from service.openapi import error_responses, json_body
 from store.records import FAMILY_STATUSES
 
@@ -62,12 +58,8 @@ async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
     an ordinary job (listed under /jobs); the whole family is admitted against the job
     budget ceiling. 202 with the family's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
-    if isinstance(data, dict) and "spec" in data:  # a stored character named: its definition
-        data = {**data, "spec": with_stored_character(svc.repo, data["spec"])}
-    try:  # validated, admitted as a whole, stored (application.families)
-        fam, budget, runs = app_families.submit_family(svc.repo, svc.settings, data)
-    except (FamilyError, BudgetExceeded) as err:
-        raise HttpError(422, str(err)) from None
+    # validated (a stored character named: its definition), admitted as a whole, stored
+    fam, budget, runs = app_families.submit_family(svc.repo, svc.settings, data)
     url = url_for(request, "get_family", family_id=fam.id)
     return JSONResponse({"id": fam.id, "url": url, "status": fam.status,
                          "runs": runs, "budget": budget.to_dict()},

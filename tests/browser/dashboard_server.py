@@ -71,8 +71,9 @@ class Server:
             assert time.monotonic() - t0 < 90, "cmrt serve did not become healthy"
             time.sleep(0.2)
 
-    def submit(self, body: dict[str, Any]) -> str:
-        r = httpx.post(self.url + "/jobs", json=body, timeout=30)
+    def submit(self, spec: dict[str, Any], **request: Any) -> str:
+        """POST /jobs `{"spec": spec, **request}` (a seed, a basis, a start); the job's id."""
+        r = httpx.post(self.url + "/jobs", json={"spec": spec, **request}, timeout=30)
         assert r.status_code == 202, r.text
         return r.json()["id"]
 

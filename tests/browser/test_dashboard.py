@@ -43,7 +43,7 @@ def server(tmp_path_factory):
     try:
         # seed 0: on these 4-evaluation budgets its members at 0.3-0.5 lie within the switch
         # check's distance of each other, so the page's preview interpolates between two
-        lib = [srv.submit({"spec": spec(f"bend_{d}", duration=d), "seed": 0})
+        lib = [srv.submit(spec(f"bend_{d}", duration=d), seed=0)
                for d in (0.3, 0.4, 0.5)]
         lib.append(srv.submit(spec("hostile_family", family=XSS, duration=0.4)))
         # a family that varies the push's force at one task duration

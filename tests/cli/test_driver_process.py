@@ -30,7 +30,8 @@ def test_jobs_go_on_while_the_api_is_killed_and_restarted(tmp_path: Path):
     api, url = _serve(tmp_path, **env)
     driver = None
     try:
-        first = httpx.post(f"{url}/jobs", json=bend("first", 0.3), timeout=30).json()["id"]
+        first = httpx.post(f"{url}/jobs", json={"spec": bend("first", 0.3)},
+                           timeout=30).json()["id"]
         time.sleep(2.0)
         assert httpx.get(f"{url}/jobs/{first}", timeout=30).json()["status"] == "queued"
         driver = subprocess.Popen(

@@ -579,7 +579,7 @@ def _seed(api: str, scratch: Path) -> dict[str, str]:
         specs.append(p)
     ids = []
     for spec in specs:
-        r = httpx.post(f"{api}/jobs", json=spec, timeout=30)
+        r = httpx.post(f"{api}/jobs", json={"spec": spec}, timeout=30)
         assert r.status_code == 202, r.text
         ids.append(r.json()["id"])
     t0 = time.monotonic()

@@ -249,12 +249,12 @@ def test_bad_input_gets_4xx_and_stores_nothing(api):
     good = bend("it_bad")
     cases = [
         (b"{not json", 400, "malformed JSON"),
-        (json.dumps({**good, "task": {"type": "juggle"}}).encode(), 422, "task"),
-        (json.dumps({**good, "clip": {"duration": 99}}).encode(), 422, "clip.duration"),
-        (json.dumps({**good, "optimize": {"popsize": 100000}}).encode(), 422,
+        (json.dumps({"spec": {**good, "task": {"type": "juggle"}}}).encode(), 422, "task"),
+        (json.dumps({"spec": {**good, "clip": {"duration": 99}}}).encode(), 422, "clip.duration"),
+        (json.dumps({"spec": {**good, "optimize": {"popsize": 100000}}}).encode(), 422,
          "optimize.popsize"),
-        (json.dumps({**good, "task": {"type": "sequence", "motions": [
-            {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 1000}}).encode(), 422,
+        (json.dumps({"spec": {**good, "task": {"type": "sequence", "motions": [
+            {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 1000}}}).encode(), 422,
          "motions"),
         (b'{"name": "' + b"x" * 3_000_000 + b'"}', 413, "limit"),
     ]

@@ -57,7 +57,7 @@ def seed_library(settings: Settings) -> dict[str, str]:
     executor = local_executor(config, SerialExecutor(), lambda spec: Sphere(centre=0.3))
     with TestClient(create_app(config, repo=repo, executor=executor),
                     headers=_auth(settings), base_url=LOCAL) as c:
-        jobs = [c.post("/jobs", json=bend_spec(f"bend_{i}", d)).json()["id"]
+        jobs = [c.post("/jobs", json={"spec": bend_spec(f"bend_{i}", d)}).json()["id"]
                 for i, d in enumerate((0.3, 0.4, 0.5))]
         deadline = time.monotonic() + 60
         while any(c.get(f"/jobs/{j}").json()["status"] not in TERMINAL for j in jobs):
@@ -93,7 +93,7 @@ def main(data_dir: str, port: int, drivers: bool = False) -> None:
     # (700 evaluations, no early-stopping threshold) when the drivers are on
     job = {**JOB_EXAMPLE, "optimize": {"max_evaluations": 700}}
     client = TestClient(app, headers=_auth(settings), base_url=LOCAL)
-    ids["queued_job_id"] = client.post("/jobs", json=job).json()["id"]
+    ids["queued_job_id"] = client.post("/jobs", json={"spec": job}).json()["id"]
     # a family for the cancel operation: left running (drivers off; with them on it runs as
     # the seeded one did, its members simulated this time)
     ids["running_family_id"] = client.post("/families", json=FAMILY).json()["id"]

@@ -9,8 +9,13 @@ import pytest
 from svc_helpers import bend_spec, wait_job
 
 
+def _request(spec, **fields) -> bytes:
+    """The body of a job request for `spec` (with `fields` beside it)."""
+    return json.dumps({"spec": spec, **fields}).encode()
+
+
 def _submit(client, spec, **kw):
-    r = client.post("/jobs", json=spec if not kw else {"spec": spec, **kw})
+    r = client.post("/jobs", json={"spec": spec, **kw})
     assert r.status_code == 202, r.text
     assert r.headers["location"].endswith(f"/jobs/{r.json()['id']}")
     return r.json()["id"]
@@ -76,7 +81,9 @@ def test_basis_and_reduced_space_job(client):
     job = wait_job(client, j)
     assert job["status"] == "stopped" and job["basis_id"] == basis["id"]
     assert len(job["best_params"]) == 8  # full spline params, searched in 2 dimensions
-    assert client.post("/bases", json={"family": "nope", "k": 2}).status_code == 422
+    nope = client.post("/bases", json={"family": "nope", "k": 2})
+    assert nope.status_code == 404
+    assert nope.json()["detail"] == "family: no library CMRTs of family 'nope'"
     assert client.post("/bases", json={"family": "bend", "k": 0}).status_code == 422
     bad = client.post("/jobs", json={"spec": bend_spec(), "basis": "missing"})
     assert bad.status_code == 422 and "basis" in bad.json()["detail"]
@@ -98,21 +105,28 @@ def test_cancel(client):
     [
         (b"{not json", 400, "malformed JSON"),
         (b"", 400, "empty"),
-        (b'{"name": "x", "task": {"type": "quiet_stance"}, "clip": {"duration": NaN}}', 400,
-         "NaN"),
-        (json.dumps({**bend_spec(), "task": {"type": "juggle"}}).encode(), 422, "task"),
-        (json.dumps({**bend_spec(), "clip": {"duration": -1}}).encode(), 422, "clip.duration"),
-        (json.dumps({**bend_spec(), "typo": 1}).encode(), 422, "typo"),
-        (json.dumps({**bend_spec(), "task": "pose_change"}).encode(), 422,
+        (b'{"spec": {"name": "x", "task": {"type": "quiet_stance"}, '
+         b'"clip": {"duration": NaN}}}', 400, "NaN"),
+        (_request({**bend_spec(), "task": {"type": "juggle"}}), 422, "task"),
+        (_request({**bend_spec(), "clip": {"duration": -1}}), 422, "clip.duration"),
+        (_request({**bend_spec(), "typo": 1}), 422, "typo"),
+        (_request({**bend_spec(), "task": "pose_change"}), 422,
          "task: must be a mapping with its type, e.g. {type: pose_change, ...}"),
-        (json.dumps({**bend_spec(), "controller": {"k_l": 30}}).encode(), 422,
+        (_request({**bend_spec(), "controller": {"k_l": 30}}), 422,
          "controller.type: required: send {type: momentum, ...}"),
-        (json.dumps({**bend_spec(), "task": {"type": "sequence", "motions": [
-            {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 40}}).encode(),
+        (_request({**bend_spec(), "task": {"type": "sequence", "motions": [
+            {"target": {"waist": 1}, "start": 0.0, "duration": 0.1}] * 40}}),
          422, "motions"),
-        (json.dumps({"spec": bend_spec(), "seed": -1}).encode(), 422, "seed"),
-        (json.dumps({"spec": bend_spec(), "colour": 1}).encode(), 422, "colour"),
+        (_request(bend_spec(), seed=-1), 422, "seed: must be an integer in [0, 2^31)"),
+        (_request(bend_spec(), seed=True), 422, "seed: must be an integer in [0, 2^31)"),
+        (_request(bend_spec(), basis=7), 422, "basis: must be a basis id (string)"),
+        (_request(bend_spec(), colour=1), 422,
+         "colour: unknown field (allowed: spec, seed, basis, start)"),
         (b"[1, 2]", 422, "mapping"),
+        (json.dumps(bend_spec()).encode(), 422, "spec: required; a job request is "
+         '{"spec": ...} (a bare task spec as the whole body is no longer accepted: send it as '
+         "`spec`)"),
+        (b"{}", 422, "spec: required"),
         (b'{"name": "' + b"x" * 2_000_000 + b'"}', 413, "limit"),
     ],
 )
@@ -120,6 +134,22 @@ def test_bad_input_is_rejected_and_nothing_stored(client, body, status, needle):
     r = client.post("/jobs", content=body, headers={"content-type": "application/json"})
     assert r.status_code == status, r.text
     assert needle in r.json()["detail"]
+    assert client.get("/jobs").json()["total"] == 0
+
+
+def test_the_earlier_request_forms_are_refused_saying_what_to_send(client):
+    """One request form: a bare task spec as the whole body, and a seed, basis or start in
+    the query (the body's fields repeated), are 422s that say where the field goes."""
+    r = client.post("/jobs", json=bend_spec())
+    assert r.status_code == 422
+    assert r.json()["detail"] == ('spec: required; a job request is {"spec": ...} (a bare task '
+                                  "spec as the whole body is no longer accepted: send it as "
+                                  "`spec`)")
+    for name, value in (("seed", 3), ("basis", "b"), ("start", "cold")):
+        r = client.post("/jobs", params={name: value}, json={"spec": bend_spec()})
+        assert r.status_code == 422
+        assert r.json()["detail"] == (f"{name}: query parameters are not accepted; send it "
+                                      "in the body")
     assert client.get("/jobs").json()["total"] == 0
 
 
@@ -160,7 +190,7 @@ def test_health_openapi_dashboard(client):
 
 
 def test_budget_is_shown_and_a_job_above_the_ceiling_is_refused(client, repo):
-    r = client.post("/jobs", json=bend_spec("small", 0.3))
+    r = client.post("/jobs", json={"spec": bend_spec("small", 0.3)})
     assert r.status_code == 202
     b = r.json()["budget"]
     assert b["evaluations"] == 12 + 3 + 2 and b["clip_seconds"] == pytest.approx(0.8)
@@ -168,7 +198,7 @@ def test_budget_is_shown_and_a_job_above_the_ceiling_is_refused(client, repo):
     huge = bend_spec("huge", 0.3, popsize=60, max_evaluations=100_000)
     huge["clip"] = {"preparation": 1.0, "duration": 10.0, "decay": 9.0}
     _, before = repo.list_jobs()
-    r = client.post("/jobs", json=huge)
+    r = client.post("/jobs", json={"spec": huge})
     assert r.status_code == 422
     assert r.json()["detail"].startswith("optimize.max_evaluations: the job may simulate up to "
                                          "2,001,220 s")
@@ -197,5 +227,5 @@ def test_a_job_near_library_members_starts_warm_unless_cold(client):
     assert wait_job(client, _submit(client, other_clip))["start"] is None  # not its neighbours
     r = client.post("/jobs", json={"spec": bend_spec("x", 0.4), "start": "warm"})
     assert r.status_code == 422 and r.json()["detail"].startswith("start:")
-    r = client.post("/jobs", params={"start": "hot"}, json=bend_spec("x", 0.4))
-    assert r.status_code == 422 and "start" in r.json()["detail"]
+    r = client.post("/jobs", params={"start": "cold"}, json={"spec": bend_spec("x", 0.4)})
+    assert r.status_code == 422 and r.json()["detail"].startswith("start: ")

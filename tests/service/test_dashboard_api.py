@@ -8,7 +8,8 @@ from svc_helpers import bend_spec, wait_job
 
 
 def test_best_is_null_before_the_first_generation(http_client):
-    job_id = http_client.post("/jobs", json=bend_spec()).json()["id"]  # stored, not driven
+    # stored, not driven
+    job_id = http_client.post("/jobs", json={"spec": bend_spec()}).json()["id"]
     best = http_client.get(f"/jobs/{job_id}/best")
     assert best.status_code == 200
     assert best.json() == {"job_id": job_id, "status": "queued", "iterations": 0,
@@ -19,7 +20,7 @@ def test_best_is_null_before_the_first_generation(http_client):
 
 
 def test_best_evaluations_after_and_bases(client):
-    ids = [client.post("/jobs", json=bend_spec(f"bend_{i}", d)).json()["id"]
+    ids = [client.post("/jobs", json={"spec": bend_spec(f"bend_{i}", d)}).json()["id"]
            for i, d in enumerate((0.3, 0.4, 0.5))]
     jobs = [wait_job(client, i) for i in ids]
     job = jobs[0]

@@ -75,7 +75,7 @@ def _run_jobs(config, repo, bodies: list[dict[str, Any]]) -> list[dict[str, Any]
         ids = []
         for body in bodies:
             body = {**body, "optimize": {**body.get("optimize", {}), **TINY_BUDGET}}
-            r = c.post("/jobs", json=body)
+            r = c.post("/jobs", json={"spec": body})
             assert r.status_code == 202, r.text
             ids.append(r.json()["id"])
         deadline = time.monotonic() + 300
@@ -93,7 +93,7 @@ def test_every_number_of_every_example_at_the_extremes(http_client, config, repo
     fields = {(ex, name) for ex, name, _ in cases}
     accepted = []
     for example, name, body in cases:
-        r = http_client.post("/jobs", json=body)
+        r = http_client.post("/jobs", json={"spec": body})
         if r.status_code == 202:
             accepted.append((example, name, body))
             continue
@@ -114,9 +114,9 @@ def test_the_messages_give_the_unit_and_the_range(http_client):
     for value, rule in ((1e-12, "must be from 1 to 1000 kg, got 1e-12"),
                         (5e-324, "must be from 1 to 1000 kg, got 5e-324"),
                         (10**23, "must be from 1 to 1000 kg, got an integer of 24 digits")):
-        r = http_client.post("/jobs", json=_with(spec, ("task", "mass"), value))
+        r = http_client.post("/jobs", json={"spec": _with(spec, ("task", "mass"), value)})
         assert r.status_code == 422 and r.json()["detail"] == f"spec: task.mass: {rule}"
-    r = http_client.post("/jobs", json=_with(spec, ("task", "distance"), 1e-30))
+    r = http_client.post("/jobs", json={"spec": _with(spec, ("task", "distance"), 1e-30)})
     assert r.json()["detail"] == ("spec: task.distance: must be 0 or at least 1e-09 in size "
                                   "(from 0 to 3 m), got 1e-30")
     assert http_client.get("/jobs").json()["total"] == 0

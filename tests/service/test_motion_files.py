@@ -26,7 +26,7 @@ TOKEN = "s3cret-token"
 
 @pytest.fixture
 def finished_job(client):
-    job_id = client.post("/jobs", json=bend_spec("bend_m", 0.3)).json()["id"]
+    job_id = client.post("/jobs", json={"spec": bend_spec("bend_m", 0.3)}).json()["id"]
     return wait_job(client, job_id)
 
 

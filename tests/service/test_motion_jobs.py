@@ -30,10 +30,11 @@ def test_a_motion_job_runs_and_its_cmrt_joins_the_library(config, repo):
         with TestClient(create_app(settings, repo=repo, executor=executor),
                         base_url=LOCAL) as c:
             bad = {**SPEC, "task": {**MOTION, "joints": ["waist", "wrist", "neck"]}}
-            r = c.post("/jobs", json=bad)
+            r = c.post("/jobs", json={"spec": bad})
             assert r.status_code == 422, r.text
             assert r.json()["detail"].startswith("spec: task.joints.1: unknown joint 'wrist'")
-            r = c.post("/jobs", json={**SPEC, "task": {"type": "motion", "file": "m.yaml"}})
+            r = c.post("/jobs", json={"spec": {**SPEC, "task": {"type": "motion",
+                                                                "file": "m.yaml"}}})
             assert r.status_code == 422 and "read by the command line" in r.json()["detail"]
             assert c.get("/jobs").json()["total"] == 0
             r = c.post("/jobs", json={"spec": SPEC, "seed": 3})

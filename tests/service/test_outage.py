@@ -67,7 +67,7 @@ def test_a_database_outage_answers_503_json_and_writes_nothing(pg_database, conf
     repo = open_repository(url)
     app = create_app(settings, repo=repo, executor=local_executor)  # drivers on
     with TestClient(app, base_url=LOCAL) as c:
-        done = c.post("/jobs", json=bend_spec("before")).json()["id"]
+        done = c.post("/jobs", json={"spec": bend_spec("before")}).json()["id"]
         job = wait_job(c, done)
         cmrt = job["cmrt_id"]
         assert cmrt, job
@@ -80,7 +80,7 @@ def test_a_database_outage_answers_503_json_and_writes_nothing(pg_database, conf
                   ("GET", "/cmrts", None), ("GET", f"/cmrts/{cmrt}", None),
                   ("GET", "/cmrts?family=bend&duration=0.3", None), ("GET", "/bases", None),
                   ("GET", "/bases/nosuchbasis", None),
-                  ("POST", "/jobs", bend_spec("during")),
+                  ("POST", "/jobs", {"spec": bend_spec("during")}),
                   ("POST", f"/jobs/{done}/cancel", None),
                   ("POST", "/bases", {"family": "bend", "k": 1}),
                   ("POST", "/links", {"path": f"/jobs/{done}/replay"}),
@@ -105,7 +105,7 @@ def test_a_database_outage_answers_503_json_and_writes_nothing(pg_database, conf
         assert after["status"] == done_status and after["cancel_requested"] is False
         assert c.get("/bases").json()["total"] == 0
         assert c.get("/health").status_code == 200
-        again = c.post("/jobs", json=bend_spec("after"))
+        again = c.post("/jobs", json={"spec": bend_spec("after")})
         assert again.status_code == 202, again.text
         assert wait_job(c, again.json()["id"])["status"] in ("converged", "stopped")
     repo.engine.dispose()

@@ -73,7 +73,7 @@ def test_depth_limit_is_exact_and_ignores_strings(client):
                      + _nested(MAX_JSON_DEPTH - 1, "array") + b"}", headers=JSON)
     assert ok.status_code == 422 and ok.json()["detail"].startswith("x: ")  # parsed, then rule
     # brackets inside a string are no nesting: the body is parsed and the spec's rule answers
-    r = client.post("/jobs", json={**bend_spec(), "name": "[" * 90})
+    r = client.post("/jobs", json={"spec": {**bend_spec(), "name": "[" * 90}})
     assert r.status_code == 422 and "name: String should match pattern" in r.json()["detail"]
 
 
@@ -82,16 +82,14 @@ def test_depth_limit_is_exact_and_ignores_strings(client):
     (lambda s: s.update(schedule=[{"scale": {"k_t": 2.0}, "end": "1e999"}]), "schedule.0.end"),
     (lambda s: s["clip"].update(duration="-1e999"), "clip.duration"),
 ])
-@pytest.mark.parametrize("envelope", [False, True])
-def test_overflowing_numbers_are_refused(client, edit, field, envelope):
+def test_overflowing_numbers_are_refused(client, edit, field):
     spec = bend_spec()
     edit(spec)
-    text = json.dumps({"spec": spec} if envelope else spec)
+    text = json.dumps({"spec": spec})
     text = text.replace('"1e999"', "1e999").replace('"-1e999"', "-1e999")
     r = client.post("/jobs", content=text.encode(), headers=JSON)
     assert r.status_code == 422, r.text
-    prefix = "spec." if envelope else ""
-    assert r.json()["detail"] == (f"{prefix}{field}: must be a finite number "
+    assert r.json()["detail"] == (f"spec.{field}: must be a finite number "
                                   "(the value overflows a double)")
     _nothing_stored(client)
 

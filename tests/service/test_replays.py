@@ -18,7 +18,7 @@ FRAME_RATE = 1.0 / (FRAME_EVERY * DT)
 
 @pytest.fixture
 def finished_job(client):
-    job_id = client.post("/jobs", json=bend_spec("bend_r", 0.3)).json()["id"]
+    job_id = client.post("/jobs", json={"spec": bend_spec("bend_r", 0.3)}).json()["id"]
     return wait_job(client, job_id)
 
 

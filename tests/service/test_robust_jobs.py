@@ -33,7 +33,7 @@ def client(http_client):
 ])
 def test_a_bad_robust_block_is_a_422_naming_the_field(client, repo, robust, field):
     spec = {**SPEC, "optimize": {**SPEC["optimize"], "robust": robust}}
-    r = client.post("/jobs", json=spec)
+    r = client.post("/jobs", json={"spec": spec})
     assert r.status_code == 422 and field in r.json()["detail"], r.text
     assert repo.list_jobs()[1] == 0
 

@@ -54,13 +54,13 @@ def test_settings_read_the_token_from_the_environment(monkeypatch):
 def test_token_guards_writes_and_reads(closed_client):
     c = closed_client
     for headers in ({}, _auth("wrong"), {"Authorization": TOKEN}):
-        r = c.post("/jobs", json=bend_spec(), headers=headers)
+        r = c.post("/jobs", json={"spec": bend_spec()}, headers=headers)
         assert r.status_code == 401, r.text
         assert r.headers["www-authenticate"].startswith("Bearer")
         assert r.json()["detail"].startswith("authorization: ")
         assert c.get("/jobs", headers=headers).status_code == 401
         assert c.post("/jobs/x/cancel", headers=headers).status_code == 401
-    r = c.post("/jobs", json=bend_spec(), headers=_auth())
+    r = c.post("/jobs", json={"spec": bend_spec()}, headers=_auth())
     assert r.status_code == 202
     assert c.get("/jobs", headers=_auth()).json()["total"] == 1
     for path in ("/health", "/dashboard", "/dashboard/jobs/x", "/dashboard/library", "/docs",
@@ -72,7 +72,7 @@ def test_public_reads_open_get_only(settings, config, repo, local_executor):
     with _client(settings, repo, local_executor, config, api_public_reads=True,
                  api_token=Settings(api_token=TOKEN).api_token) as c:
         assert c.get("/jobs").status_code == 200
-        assert c.post("/jobs", json=bend_spec()).status_code == 401
+        assert c.post("/jobs", json={"spec": bend_spec()}).status_code == 401
         assert c.post("/bases", json={"family": "bend"}).status_code == 401
 
 
@@ -104,13 +104,13 @@ def test_bodies_must_be_json(open_client, ctype):
 def test_json_with_charset_is_accepted(open_client):
     import json
 
-    r = open_client.post("/jobs", content=json.dumps(bend_spec()).encode(),
+    r = open_client.post("/jobs", content=json.dumps({"spec": bend_spec()}).encode(),
                          headers={"content-type": "application/json; charset=utf-8"})
     assert r.status_code == 202
 
 
 def test_cross_site_state_change_is_refused(open_client):
-    job = open_client.post("/jobs", json=bend_spec()).json()["id"]
+    job = open_client.post("/jobs", json={"spec": bend_spec()}).json()["id"]
     r = open_client.post(f"/jobs/{job}/cancel", headers={"sec-fetch-site": "cross-site"})
     assert r.status_code == 403 and r.json()["detail"].startswith("origin: ")
     assert open_client.get(f"/jobs/{job}").json()["cancel_requested"] is False
@@ -127,21 +127,21 @@ def test_cross_site_state_change_is_refused(open_client):
     {"sec-fetch-site": "same-site"},
 ])
 def test_another_origin_cannot_change_state(open_client, headers):
-    job = open_client.post("/jobs", json=bend_spec()).json()["id"]
+    job = open_client.post("/jobs", json={"spec": bend_spec()}).json()["id"]
     r = open_client.post(f"/jobs/{job}/cancel", headers={**headers, "content-type": "text/plain"},
                          content=b"x")
     assert r.status_code == 403, r.text
     assert r.json()["detail"].startswith("origin: requests that change state from another "
                                          "origin are refused ("), r.text
     assert open_client.get(f"/jobs/{job}").json()["cancel_requested"] is False
-    r = open_client.post("/jobs", json=bend_spec("other"), headers=headers)
+    r = open_client.post("/jobs", json={"spec": bend_spec("other")}, headers=headers)
     assert r.status_code == 403 and open_client.get("/jobs").json()["total"] == 1
     # Reads are not state changes: a page may link to them.
     assert open_client.get(f"/jobs/{job}", headers=headers).status_code == 200
 
 
 def test_the_own_origin_changes_state(settings, config, repo, local_executor, open_client):
-    job = open_client.post("/jobs", json=bend_spec(),
+    job = open_client.post("/jobs", json={"spec": bend_spec()},
                            headers={"origin": "http://localhost",
                                     "sec-fetch-site": "same-origin"}).json()["id"]
     assert open_client.post(f"/jobs/{job}/cancel",
@@ -150,9 +150,9 @@ def test_the_own_origin_changes_state(settings, config, repo, local_executor, op
     # proxy puts in Host.
     with _client(settings, repo, local_executor, config, allowed_hosts=["10.0.0.5"],
                  public_url="https://cmrt.example/api") as c:
-        assert c.post("/jobs", json=bend_spec("b"), headers={
+        assert c.post("/jobs", json={"spec": bend_spec("b")}, headers={
             "origin": "https://cmrt.example", "host": "10.0.0.5:8000"}).status_code == 202
-        assert c.post("/jobs", json=bend_spec("c"), headers={
+        assert c.post("/jobs", json={"spec": bend_spec("c")}, headers={
             "origin": "https://evil.example", "host": "10.0.0.5:8000"}).status_code == 403
 
 
@@ -175,10 +175,10 @@ def test_head_is_served_wherever_get_is(closed_client, repo):
 def test_bidirectional_controls_are_refused(open_client):
     for field, value in (("family", "bend\u202e"), ("family", "\u2066x\u2069"),
                          ("name", "a\u200fb")):
-        r = open_client.post("/jobs", json={**bend_spec(), field: value})
+        r = open_client.post("/jobs", json={"spec": {**bend_spec(), field: value}})
         assert r.status_code == 422, r.text
         assert r.json()["detail"].startswith(f"spec: {field}: "), r.text
-    r = open_client.post("/jobs", json={**bend_spec(), "family": "bend\u202e"})
+    r = open_client.post("/jobs", json={"spec": {**bend_spec(), "family": "bend\u202e"}})
     assert "control character '\\u202e' not allowed" in r.json()["detail"]
     assert open_client.get("/jobs").json()["total"] == 0
 
@@ -195,7 +195,7 @@ def test_a_404_quotes_the_id_it_echoes(open_client):
 def test_no_host_header_reflection(settings, config, repo, local_executor):
     other = {"host": "other.example:666"}  # an allowed name, never echoed into URLs
     with _client(settings, repo, local_executor, config, allowed_hosts=["other.example"]) as c:
-        r = c.post("/jobs", json=bend_spec(), headers=other)
+        r = c.post("/jobs", json={"spec": bend_spec()}, headers=other)
         job = r.json()["id"]
         assert r.headers["location"] == f"/jobs/{job}" and r.json()["url"] == f"/jobs/{job}"
         for resp in (c.get(f"/jobs/{job}", headers=other), c.get("/jobs", headers=other),
@@ -209,7 +209,7 @@ def test_no_host_header_reflection(settings, config, repo, local_executor):
 def test_public_url_is_the_base_of_returned_urls(settings, config, repo, local_executor):
     with _client(settings, repo, local_executor, config,
                  public_url="https://cmrt.example/api") as c:
-        r = c.post("/jobs", json=bend_spec(), headers={"host": "localhost:9"})
+        r = c.post("/jobs", json={"spec": bend_spec()}, headers={"host": "localhost:9"})
         job = r.json()["id"]
         assert r.headers["location"] == f"https://cmrt.example/api/jobs/{job}"
         assert c.get(f"/jobs/{job}").json()["links"]["cancel"] == \
@@ -278,12 +278,12 @@ def _refused(r):
 
 
 def test_a_rebound_page_reads_and_writes_nothing(open_client, repo):
-    job = open_client.post("/jobs", json=bend_spec()).json()["id"]
+    job = open_client.post("/jobs", json={"spec": bend_spec()}).json()["id"]
     _refused(open_client.get("/jobs", headers=REBOUND))
     _refused(open_client.get(f"/jobs/{job}", headers=REBOUND))
     _refused(open_client.get("/cmrts", headers=REBOUND))
     _refused(open_client.post("/bases", json={"family": "bend", "k": 1}, headers=REBOUND))
-    _refused(open_client.post("/jobs", json=bend_spec("rebound"), headers=REBOUND))
+    _refused(open_client.post("/jobs", json={"spec": bend_spec("rebound")}, headers=REBOUND))
     _refused(open_client.post(f"/jobs/{job}/cancel", headers=REBOUND))
     _refused(open_client.options("/jobs", headers=REBOUND))
     _refused(open_client.get("/health", headers=REBOUND))
@@ -300,7 +300,8 @@ def test_loopback_names_are_answered(open_client, host):
     origin = f"http://{host}"
     same = {"host": host, "origin": origin, "sec-fetch-site": "same-origin"}
     assert open_client.get("/jobs", headers=same).status_code == 200
-    r = open_client.post("/jobs", json=bend_spec(), headers=same)  # the dashboard's request
+    # the dashboard's request
+    r = open_client.post("/jobs", json={"spec": bend_spec()}, headers=same)
     assert r.status_code == 202, r.text
 
 
@@ -321,7 +322,7 @@ def test_configured_names_are_answered(settings, config, repo, local_executor):
             assert c.get("/jobs", headers={"host": host}).status_code == 200, host
         origin = {"host": "api:8000", "origin": "http://api:8000",
                   "sec-fetch-site": "same-origin"}
-        assert c.post("/jobs", json=bend_spec(), headers=origin).status_code == 202
+        assert c.post("/jobs", json={"spec": bend_spec()}, headers=origin).status_code == 202
         for host in ("evil.example", "cmrt.example.evil", "lan", "10.0.0.8"):
             _refused(c.get("/jobs", headers={"host": host}))
     with _client(settings, repo, local_executor, config, allowed_hosts=["*"]) as c:

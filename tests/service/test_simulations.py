@@ -32,7 +32,7 @@ def test_clip_without_cmrt(client):
 
 
 def test_cmrt_from_job_library_and_inline(client):
-    job_id = client.post("/jobs", json=bend_spec("bend_x", 0.3)).json()["id"]
+    job_id = client.post("/jobs", json={"spec": bend_spec("bend_x", 0.3)}).json()["id"]
     job = wait_job(client, job_id)
     spec = bend_spec("bend_x", 0.3)
     by_job = client.post("/simulations", json={"spec": spec, "traces": False,
