@@ -13,8 +13,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 PROJECT = ("application", "cli", "cmrt", "optim", "service", "sim", "store", "worker")
 FORBIDDEN = ("fastapi", "starlette", "celery", "kombu", "redis", "service", "worker", "cli")
-MODULES = ("application", "application.admission", "application.bases", "application.families",
-           "application.jobs", "application.library")
+MODULES = ("application", *sorted(f"application.{p.stem}"
+                                  for p in (ROOT / "application").glob("*.py")
+                                  if p.stem != "__init__"))
 
 
 def test_application_imports_no_web_queue_service_or_worker_code():
@@ -97,3 +98,38 @@ def test_nothing_outside_the_command_line_imports_it():
     graph = _project_imports()
     assert sorted(m for m, deps in graph.items() if not m.startswith("cli")
                   and any(d == "cli" or d.startswith("cli.") for d in deps)) == []
+
+
+#: The modules of service/ that answer a 4xx themselves: the one error mapping and the parsing
+#: of what arrives (the body's bytes and JSON, query parameters, the path); every other refusal
+#: is an application error that service/errors.py maps (application/errors.py).
+HTTP_REFUSERS = {"service/errors.py", "service/body.py", "service/deps.py"}
+
+
+def test_the_service_imports_nothing_of_the_domain():
+    """The API reaches sim/ and optim/ only through application/: no module of service/
+    imports them, so no domain error type is translated in a router."""
+    graph = _project_imports()
+    found = sorted(f"{m} -> {d}" for m, deps in graph.items() if m.split(".")[0] == "service"
+                   for d in deps if d.split(".")[0] in ("sim", "optim"))
+    assert found == []
+
+
+def _raises_http_4xx(path: Path) -> list[int]:
+    lines = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Raise) and isinstance(node.exc, ast.Call) and node.exc.args:
+            name = getattr(node.exc.func, "id", getattr(node.exc.func, "attr", ""))
+            code = node.exc.args[0]
+            if name in ("HttpError", "HTTPException") and isinstance(code, ast.Constant) \
+                    and 400 <= code.value < 500:
+                lines.append(node.lineno)
+    return lines
+
+
+def test_no_router_refuses_a_request_itself():
+    paths = sorted((ROOT / "service").rglob("*.py"))
+    found = [f"{p.relative_to(ROOT)}:{n}" for p in paths
+             if str(p.relative_to(ROOT)) not in HTTP_REFUSERS for n in _raises_http_4xx(p)]
+    assert found == []
+    assert all(_raises_http_4xx(ROOT / p) for p in HTTP_REFUSERS - {"service/errors.py"})
