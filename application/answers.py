@@ -29,8 +29,6 @@ from __future__ import annotations
 
 import json
 import math
-import threading
-from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -384,20 +382,13 @@ def robust_cover(repo: Repository, family: str, key: str, value: float,
 
 #: Library parameter -> spec path of robust CMRTs by id (an entry never changes): a query
 #: parses a robust CMRT's spec once per process, not at every answer.
-_PATHS: OrderedDict[str, dict[str, str]] = OrderedDict()
 _PATHS_KEPT = 1024
+_PATHS: LRU[str, dict[str, str]] = LRU(_PATHS_KEPT)
 
 
 def _parameter_paths(rec: CmrtRecord) -> dict[str, str]:
-    with _SPECS_AT_LOCK:
-        got = _PATHS.get(rec.id)
-    if got is None:
-        got = parse_spec(rec.spec, f"library CMRT {rec.id}").parameter_paths()
-        with _SPECS_AT_LOCK:
-            _PATHS[rec.id] = got
-            while len(_PATHS) > _PATHS_KEPT:
-                _PATHS.popitem(last=False)
-    return got
+    return _PATHS.get_or_make(
+        rec.id, lambda: parse_spec(rec.spec, f"library CMRT {rec.id}").parameter_paths())
 
 
 def _robust_only(rec: CmrtRecord, key: str, value: float) -> InterpolatedCmrt:
@@ -478,7 +469,6 @@ def _predicted(got: InterpolatedCmrt, recs: list[CmrtRecord]) -> float:
 #: How many query specs are kept (a few kB each).
 SPECS_AT_CACHED = 1024
 _SPECS_AT: LRU[tuple[Any, ...], CanonicalSpec] = LRU(SPECS_AT_CACHED)
-_SPECS_AT_LOCK = threading.Lock()  # guards `_PATHS`
 
 
 def _spec_at(rec: CmrtRecord, key: str, value: float,

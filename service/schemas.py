@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from application.families import FamilySpec
+from application.families import FamilyProgress, FamilyRunOut, FamilySpec
 from application.jobs import TaskSpec
 from application.simulations import (
     MAX_CMRT_PARAMS,
@@ -22,8 +22,9 @@ from application.simulations import (
 from cmrt.defaults import DEFAULT_SEED
 from service.links import SIGNABLE
 
-__all__ = ["MAX_CMRT_PARAMS", "CmrtChoice", "FamilySpec", "InlineCmrt", "JobBestCmrt",
-           "LibraryCmrtRef", "ReplayRequest", "SimulationRequest", "TaskSpec"]
+__all__ = ["MAX_CMRT_PARAMS", "CmrtChoice", "FamilyProgress", "FamilyRunOut", "FamilySpec",
+           "InlineCmrt", "JobBestCmrt", "LibraryCmrtRef", "ReplayRequest", "SimulationRequest",
+           "TaskSpec"]
 
 
 #: The example body of `POST /jobs` in the OpenAPI document (examples/fast_bend.yaml's task;
@@ -456,34 +457,6 @@ class FamilyAccepted(BaseModel):
 class FamilyLinks(BaseModel):
     cancel: str
     dashboard: str
-
-
-class FamilyRunOut(BaseModel):
-    """One run of a family's plan and the job that runs it (null until it is started)."""
-
-    id: str
-    kind: str
-    value: float | None
-    warm_from: str | None = Field(description="the run whose optimum starts this one (null: "
-                                              "the flat spline)")
-    needs: list[str] = Field(description="runs that must be finished first")
-    job_id: str | None
-    job_url: str | None
-    status: str
-    best_objective: float | None
-    evaluations: int
-    start: str | None = Field(description="where the run's search started (the job's "
-                                          "`start.from`)")
-    curve: list[list[float]] | None = Field(
-        None, description="[evaluations, best so far] per generation; only with curves=true")
-
-
-class FamilyProgress(BaseModel):
-    runs: int
-    done: int
-    running: int
-    queued: int
-    not_started: int
 
 
 class FamilyOut(BaseModel):

@@ -13,16 +13,18 @@ from service import paper, schemas
 from service.body import read_json
 from service.deps import MAX_OFFSET, RepoDep, ServicesDep, url_for
 from service.openapi import error_responses, json_body
+from store import FamilyRecord, Repository
 from store.records import FAMILY_STATUSES
 
 router = APIRouter(prefix="/families", tags=["families"])
 
 
-def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
-               curves: bool = False) -> dict[str, Any]:
-    """A family as the API serves it; `full`: its runs, progress and once done its report
-    (application.families.family_progress) and the paper's Table 2 where the task has one."""
-    out: dict[str, Any] = {
+def family_out(fam: FamilyRecord, request: Request, repo: Repository, *, full: bool = False,
+               curves: bool = False) -> schemas.FamilyOut:
+    """A family as the API serves it; `full`: its request, runs, progress and once done its
+    report (application.families.family_detail) and the paper's Table 2 where the task has
+    one (fields not given are left out of the answer)."""
+    head: dict[str, Any] = {
         "id": fam.id,
         "url": url_for(request, "get_family", family_id=fam.id),
         "family": fam.family,
@@ -38,13 +40,14 @@ def family_out(fam: Any, request: Request, repo: Any, *, full: bool = False,
                   "dashboard": url_for(request, "dashboard_family", family_id=fam.id)},
     }
     if not full:
-        return out
-    out.update(app_families.family_progress(
+        return schemas.FamilyOut(**head)
+    d = app_families.family_detail(
         repo, fam, curves=curves, job_url=lambda job_id: url_for(request, "get_job",
-                                                                 job_id=job_id)))
+                                                                 job_id=job_id))
     fs = app_families.family_spec(fam)  # parsed once per process
-    out["paper_table2"] = paper.table2(fs.base.task_type, fs.param)
-    return out
+    return schemas.FamilyOut(**head, spec=d.spec, runs=d.runs, progress=d.progress,
+                             members=d.members, basis=d.basis, checks=d.checks,
+                             paper_table2=paper.table2(fs.base.task_type, fs.param))
 
 
 @router.post("", status_code=202, summary="Grow a family of CMRTs along a task parameter",
@@ -59,10 +62,10 @@ async def submit_family(request: Request, svc: ServicesDep) -> JSONResponse:
     budget ceiling. 202 with the family's URL in `Location`."""
     data = await read_json(request, svc.settings.max_body_bytes)
     # validated (a stored character named: its definition), admitted as a whole, stored
-    fam, budget, runs = app_families.submit_family(svc.repo, svc.settings, data)
-    url = url_for(request, "get_family", family_id=fam.id)
-    return JSONResponse({"id": fam.id, "url": url, "status": fam.status,
-                         "runs": runs, "budget": budget.to_dict()},
+    accepted = app_families.submit_family_request(svc.repo, svc.settings, data)
+    url = url_for(request, "get_family", family_id=accepted.family.id)
+    return JSONResponse({"id": accepted.family.id, "url": url, "status": accepted.family.status,
+                         "runs": accepted.runs, "budget": accepted.budget.to_dict()},
                         status_code=202, headers={"Location": url})
 
 
@@ -89,7 +92,7 @@ def get_family(
     request: Request,
     repo: RepoDep,
     curves: Annotated[bool, Query(description="each run's [evaluations, best so far]")] = False,
-) -> dict[str, Any]:
+) -> schemas.FamilyOut:
     """Status and progress; every run of the plan with its job; once done, the members
     (objective, fell, task success, CMRT), the PCA basis and the checks (members'
     reconstruction errors and strategy switches, interpolation probes, Table 2 rows), and the
