@@ -74,10 +74,10 @@ class JobRequest(BaseModel):
     seed: Annotated[int, Field(ge=0, lt=2**31, description=(
         f"CMA-ES seed; none: {DEFAULT_SEED}, the command line's default too"))] | None = None
     basis: Annotated[str, Field(max_length=64)] | None = None
-    start: Literal["library", "cold"] = Field(
+    start: Literal["library", "cold"] | None = Field(
         "library", description="library: from the library's CMRT at the spec's task "
         "parameters when it has one (interpolated between neighbours or stored there), with a "
-        "small step; cold: from the flat spline")
+        "small step; cold: from the flat spline; none: library")
 
 
 class JobBudget(BaseModel):
@@ -415,7 +415,11 @@ class RefineRequest(BaseModel):
     """A refinement at a task parameter: `parameters` names the value (one key, or several
     with `along`), searched in the family's newest PCA basis (or `basis`)."""
 
-    model_config = ConfigDict(extra="forbid")
+    # several parameters: `along` names the interpolated one (which must be one of them, a
+    # rule JSON Schema cannot state)
+    model_config = ConfigDict(extra="forbid", json_schema_extra={
+        "if": {"properties": {"parameters": {"minProperties": 2}}, "required": ["parameters"]},
+        "then": {"properties": {"along": {"type": "string"}}, "required": ["along"]}})
     family: Annotated[str, Field(min_length=1, max_length=100)]
     parameters: Annotated[dict[Annotated[str, Field(min_length=1, max_length=64)],
                                Annotated[float, Field(allow_inf_nan=False)]],

@@ -43,6 +43,37 @@ def _check_text(value: Any) -> None:
             _check_text(v)
 
 
+#: The JSON Schema pattern of text without control characters (Unicode's Cc: U+0000-U+001F,
+#: U+007F-U+009F) nor `BIDI_CONTROLS`: what `_check_text` refuses, said in the schema.
+TEXT_PATTERN = ("^[^\\u0000-\\u001f\\u007f-\\u009f\\u061c\\u200e\\u200f\\u202a-\\u202e"
+                "\\u2066-\\u2069]*$")
+
+
+def _text_schema(node: dict[str, Any]) -> None:
+    """Put TEXT_PATTERN on every string of a field's schema that has no pattern, enum or const
+    of its own, and on the keys of every mapping (in place; a `$ref` is the other model's)."""
+    if node.get("type") == "string" and not {"pattern", "enum", "const"} & node.keys():
+        node["pattern"] = TEXT_PATTERN
+    values = node.get("additionalProperties")
+    if node.get("type") == "object" and values is not False:
+        node["propertyNames"] = {"pattern": TEXT_PATTERN, **node.get("propertyNames", {})}
+    for sub in (*node.get("anyOf", ()), *node.get("oneOf", ()), *node.get("prefixItems", ())):
+        _text_schema(sub)
+    for sub in (node.get("items"), values):
+        if isinstance(sub, dict):
+            _text_schema(sub)
+
+
+def _schema_rules(schema: dict[str, Any], cls: type) -> None:
+    """The rules of a StrictModel that JSON Schema can state, put in its schema: no control
+    characters in text, and a variant's `type` tag required (a task or controller block is
+    chosen by it: the block without one is refused)."""
+    for name, prop in schema.get("properties", {}).items():
+        _text_schema(prop)
+        if name == "type" and "const" in prop and name not in schema.get("required", ()):
+            schema.setdefault("required", []).insert(0, name)
+
+
 class Samples:
     """Marks a list field whose entries all follow one rule (a motion's frames): the walk over a
     spec's numbers (`sim.spec.numeric_fields`) takes its first entry to stand for them all."""
@@ -58,7 +89,8 @@ SAMPLES = Samples()
 class StrictModel(BaseModel):
     """Frozen, strict, finite, no extra fields, no control characters in text."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False,
+                              json_schema_extra=_schema_rules)
 
     @field_validator("*", mode="after")
     @classmethod
@@ -98,7 +130,12 @@ def quantity(lo: float, hi: float, unit: str) -> Any:
         return v
 
     small = f"; 0 or at least {MIN_MAGNITUDE:g} in size" if lo <= 0 <= hi else ""
-    return Annotated[float, Field(ge=lo, le=hi, description=rule + small),
+    # the sizes between 0 and MIN_MAGNITUDE (either side) that the range holds are refused
+    bands = [{"exclusiveMinimum": a, "exclusiveMaximum": b}
+             for a, b in ((-MIN_MAGNITUDE, 0.0), (0.0, MIN_MAGNITUDE)) if lo < b and a < hi]
+    extra = {"not": {"anyOf": bands}} if bands else None
+    return Annotated[float, Field(ge=lo, le=hi, description=rule + small,
+                                  json_schema_extra=extra),
                      BeforeValidator(check)]
 
 

@@ -11,7 +11,7 @@ import copy
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, PrivateAttr, ValidationError, model_validator
+from pydantic import BeforeValidator, Field, PrivateAttr, ValidationError, model_validator
 
 from cmrt.defaults import DEFAULT_SEED
 from optim.errors import OptimError
@@ -71,7 +71,9 @@ def set_path(data: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
 class FamilySpec(StrictModel):
     """A family request (docs/families.md, "The request"). Build with `parse_family`."""
 
-    spec: dict[str, Any]
+    # kept as the mapping it came as (the members are made from it), documented as the task
+    # spec it must be (parsed whole in `_check`)
+    spec: Annotated[dict[str, Any], BeforeValidator(lambda v: v, json_schema_input_type=TaskSpec)]
     param: Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)+$")]
     values: Annotated[list[float], Field(min_length=1, max_length=200)]
     strategy: Literal["independent", "continuation"] = "independent"

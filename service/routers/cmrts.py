@@ -66,9 +66,12 @@ def interpolate_cmrt(
     request: Request,
     svc: ServicesDep,
     params: LibraryParams,
-    family: Annotated[str, Query(max_length=100)],
+    family: Annotated[str, Query(min_length=1, max_length=100)],
     extrapolate: bool = False,
-    along: Annotated[str | None, Query(max_length=64)] = None,
+    along: Annotated[str | None, Query(
+        min_length=1, max_length=64,
+        description="the interpolated parameter, one of those given; required with several"
+    )] = None,
     verify: Annotated[bool, Query(
         description="simulate the answer once at the query's value (kept in the library: the "
                     "next identical query costs nothing); an answer that falls, fails its "
