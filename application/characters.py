@@ -14,7 +14,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from application import errors
-from sim.character import Character, parse_character, shipped_characters, shipped_definition
+from sim.character import (
+    Character,
+    definition_schema,
+    parse_character,
+    shipped_characters,
+    shipped_definition,
+)
 from sim.errors import CharacterError
 from store import CharacterRecord, Conflict, NotFound, Repository
 
@@ -100,6 +106,6 @@ def shipped(name: str) -> dict[str, Any] | None:
     return shipped_definition(name) if name in shipped_characters() else None
 
 
-__all__ = ["NAME_PATTERN", "CharacterNameTakenError", "InvalidCharacterError",
+__all__ = ["NAME_PATTERN", "definition_schema", "CharacterNameTakenError", "InvalidCharacterError",
            "add_character", "check_definition", "request_with_stored_character", "shipped",
            "shipped_names", "summary", "with_stored_character"]

@@ -6,8 +6,9 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, field_validator
 
+from application.characters import definition_schema
 from application.families import FamilyProgress, FamilyRunOut, FamilySpec
 from application.jobs import TaskSpec
 from application.simulations import (
@@ -294,7 +295,9 @@ class CharacterRequest(BaseModel):
     name: Annotated[str, Field(pattern=r"^[a-z0-9_]{1,64}$", strict=True,
                                description="lower-case letters, digits and `_`; no shipped "
                                            "character's name")]
-    definition: dict[str, Any] = Field(description="a full character definition")
+    definition: Annotated[dict[str, Any], WithJsonSchema(
+        {**definition_schema(), "description": "a full character definition (the rules that "
+         "relate its fields to each other: docs/characters.md)"})]
 
 
 class CharacterSummary(BaseModel):

@@ -463,3 +463,61 @@ def _read_definition(path: Path, model: str) -> Any:
         return read_document(path, f"character {model!r}")
     except SpecReadError as err:
         raise CharacterError(str(err)) from None
+
+
+def _number(lo: float | None = None, hi: float | None = None, *, above: float | None = None
+            ) -> dict[str, Any]:
+    out: dict[str, Any] = {"type": "number"}
+    for key, v in (("minimum", lo), ("maximum", hi), ("exclusiveMinimum", above)):
+        if v is not None:
+            out[key] = v
+    return out
+
+
+def _block(properties: dict[str, Any], required: tuple[str, ...] = ()) -> dict[str, Any]:
+    out: dict[str, Any] = {"type": "object", "additionalProperties": False,
+                           "properties": properties}
+    return {**out, "required": list(required)} if required else out
+
+
+def definition_schema() -> dict[str, Any]:
+    """The JSON Schema of a character definition: the rules of `parse_character` a schema can
+    state (the fields of each block, the required ones, names, counts and ranges). The rest
+    relates fields to each other (the root is `segments[0]`, parents listed before, segment
+    masses summing to the reference mass, feet on the ground, limits around the zero pose, ...)
+    and is checked only by `parse_character` (docs/characters.md)."""
+    name = {"type": "string", "pattern": f"^{rules.NAME_PATTERN.pattern}$"}
+    vec2 = {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2}
+    joint = _block({"name": name, "anchor": vec2,
+                    "limits": {"type": "array", "prefixItems": [
+                        _number(-rules.MAX_LIMIT_DEGREES, 0.0),
+                        _number(0.0, rules.MAX_LIMIT_DEGREES)], "minItems": 2, "maxItems": 2},
+                    "weight": _number(*rules.WEIGHT_RANGE),
+                    "torque": _number(*rules.TORQUE_RANGE)}, ("name", "anchor", "limits"))
+    point = {"type": "array", "prefixItems": [{"type": "number"}, {"type": "number"},
+                                              _number(0.0, rules.MAX_RADIUS)],
+             "minItems": 3, "maxItems": 3}
+    geom = _block({"name": name, "shape": {"enum": list(GEOM_SHAPES)}, "center": vec2,
+                   "from": vec2, "to": vec2, "radius": _number(hi=rules.MAX_RADIUS, above=0.0)},
+                  ("shape", "radius"))
+    body = {"name": name, "mass": _number(rules.MIN_SEGMENT_MASS),
+            "inertia": _number(above=0.0), "com": vec2,
+            "foot": _block({"heel": vec2, "toe": vec2}, ("heel", "toe")),
+            "points": {"type": "array", "items": point, "maxItems": rules.MAX_POINTS},
+            "geoms": {"type": "array", "items": geom, "maxItems": rules.MAX_GEOMS}}
+    needs = ("name", "mass", "inertia", "com")
+    root = _block(body, needs)  # segments[0]: the root, without a parent or a joint
+    segment = _block({**body, "parent": name, "joint": joint}, (*needs, "parent", "joint"))
+    return _block({
+        "reference": _block({"height": _number(*rules.HEIGHT_RANGE),
+                             "mass": _number(*rules.MASS_RANGE)}, ("height", "mass")),
+        "root": name,
+        "torso": {"anyOf": [name, {"type": "null"}]},
+        "torque_limit": _number(*rules.TORQUE_RANGE),
+        "hands": {"type": "array", "items": name, "uniqueItems": True,
+                  "maxItems": rules.MAX_HANDS},
+        "segments": {"type": "array", "prefixItems": [root], "items": segment, "minItems": 2,
+                     "maxItems": rules.MAX_SEGMENTS},
+        "standing": _block({"pose": {"type": "object", "additionalProperties": {
+            "type": "number"}}, "balance": {"type": "boolean"}}),
+    }, ("reference", "root", "torque_limit", "segments"))
