@@ -39,8 +39,6 @@ DEFAULT_POLL_SECONDS = 0.5
 #: Seconds one HTTP request may take (a what-if simulation runs a whole clip: longer).
 DEFAULT_TIMEOUT_SECONDS = 30.0
 SIMULATION_TIMEOUT_SECONDS = 660.0
-#: Most items one list request asks for (the API's own limit).
-PAGE_LIMIT = 200
 
 # "spec: clip.preparation: must be >= 0" -> field "spec.clip.preparation", rule "must be >= 0"
 _FIELD_PART = re.compile(r"[A-Za-z_][\w\-]*(?:\[\d+\])?(?:\.[A-Za-z_0-9][\w\-]*(?:\[\d+\])?)*")

@@ -49,18 +49,8 @@ async def get_repo(s: Annotated[Services, Depends(services)]) -> Repository:
     return s.repo
 
 
-async def get_executor(s: Annotated[Services, Depends(services)]) -> GenerationExecutor:
-    return s.executor
-
-
-async def get_runner(s: Annotated[Services, Depends(services)]) -> JobRunner:
-    return s.runner
-
-
 SettingsDep = Annotated[Settings, Depends(get_settings_dep)]
 RepoDep = Annotated[Repository, Depends(get_repo)]
-ExecutorDep = Annotated[GenerationExecutor, Depends(get_executor)]
-RunnerDep = Annotated[JobRunner, Depends(get_runner)]
 ServicesDep = Annotated[Services, Depends(services)]
 
 

@@ -28,8 +28,6 @@ LINK_SECONDS = 900
 #: job's motion files.
 SIGNABLE = re.compile(r"/(?:jobs|cmrts)/[A-Za-z0-9._~-]{1,64}/replay"
                       r"|/jobs/[A-Za-z0-9._~-]{1,64}/motion\.(?:bvh|csv)")
-#: Hex digits of an HMAC-SHA256.
-SIGNATURE_CHARS = 64
 
 
 def signature(token: str, path: str, params: list[tuple[str, str]]) -> str:

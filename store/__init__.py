@@ -14,26 +14,19 @@ from __future__ import annotations
 
 from sqlalchemy import Engine
 
-from store.db import init_db, make_engine, session_scope
-from store.errors import Conflict, InvalidTransition, NotFound, StoreError
+from store.db import init_db, make_engine
+from store.errors import Conflict, NotFound, StoreError
 from store.records import (
-    JOB_STATUSES,
     TERMINAL_STATUSES,
-    TRANSITIONS,
-    BasisRecord,
     CharacterRecord,
     CmrtEntry,
     CmrtKey,
     CmrtRecord,
-    EvaluationClaim,
     EvaluationRecord,
     FamilyRecord,
     FamilyScan,
-    GenerationCounts,
-    GenerationRecord,
     JobRecord,
     JobStart,
-    VerificationRecord,
 )
 from store.repository import Repository, SqlRepository
 
@@ -51,31 +44,22 @@ def open_repository(url: str | None = None, *, migrate: bool = True) -> SqlRepos
 
 
 __all__ = [
-    "JOB_STATUSES",
     "TERMINAL_STATUSES",
-    "TRANSITIONS",
-    "BasisRecord",
     "CharacterRecord",
     "CmrtEntry",
     "CmrtKey",
     "CmrtRecord",
     "Conflict",
-    "EvaluationClaim",
     "EvaluationRecord",
     "FamilyRecord",
     "FamilyScan",
-    "GenerationCounts",
-    "GenerationRecord",
-    "InvalidTransition",
     "JobRecord",
     "JobStart",
     "NotFound",
     "Repository",
     "SqlRepository",
     "StoreError",
-    "VerificationRecord",
     "init_db",
     "make_engine",
     "open_repository",
-    "session_scope",
 ]

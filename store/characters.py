@@ -20,7 +20,7 @@ from cmrt.canonical import document_hash
 from store.errors import Conflict, NotFound
 from store.models import CharacterRow
 from store.records import CharacterRecord
-from store.sql import SqlBase, _json
+from store.sql import SqlBase, _json, row_record
 
 #: Longest character name (the spec's `character.model` allows 64 characters).
 MAX_NAME_LENGTH = 64
@@ -46,8 +46,7 @@ class CharacterRepository(abc.ABC):
 
 
 def _record(row: CharacterRow) -> CharacterRecord:
-    return CharacterRecord(id=row.id, name=row.name, definition=row.definition,
-                           definition_hash=row.definition_hash, created_at=row.created_at)
+    return row_record(CharacterRecord, row)
 
 
 class SqlCharacters(SqlBase, CharacterRepository):

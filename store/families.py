@@ -26,7 +26,7 @@ from store.records import (
     JobRecord,
     JobStart,
 )
-from store.sql import SqlBase, _job_record, _json
+from store.sql import SqlBase, _job_record, _json, row_record
 
 
 class FamilyRepository(abc.ABC):
@@ -96,12 +96,7 @@ class FamilyRepository(abc.ABC):
 
 
 def _family_record(f: FamilyRow, runs: dict[str, str]) -> FamilyRecord:
-    return FamilyRecord(
-        id=f.id, family=f.family, param=f.param, spec=f.spec, spec_hash=f.spec_hash,
-        status=f.status, error=f.error,
-        cancel_requested=bool(f.cancel_requested), created_at=f.created_at,
-        finished_at=f.finished_at, runs=runs,
-    )  # fmt: skip
+    return row_record(FamilyRecord, f, cancel_requested=bool(f.cancel_requested), runs=runs)
 
 
 class SqlFamilies(SqlBase, FamilyRepository):

@@ -31,14 +31,13 @@ from store.records import (
     VerificationRecord,
 )
 from store.sql import (
-    _CMRT_RECORD_FIELDS,
     SqlBase,
-    _basis_record,
-    _cmrt_record,
     _exact_eps,
     _json,
     _num,
     _opt_num,
+    field_names,
+    row_record,
 )
 
 
@@ -162,7 +161,7 @@ _FAMILY_STAMP = select(func.count(), func.max(CmrtRow.created_at)).where(
     CmrtRow.family == bindparam("family"))
 
 #: Library records by id, as Core rows in `CmrtRecord`'s field order (no ORM objects made).
-_RECORDS = select(*(CmrtRow.__table__.c[name] for name in _CMRT_RECORD_FIELDS)).where(
+_RECORDS = select(*(CmrtRow.__table__.c[name] for name in field_names(CmrtRecord))).where(
     CmrtRow.id.in_(bindparam("ids", expanding=True)))
 
 #: Library records kept in memory per repository (about 17 kB each with curve and spec): the
@@ -241,7 +240,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
                 select(CmrtRow).where(CmrtRow.job_id == job_id)
                 .order_by(CmrtRow.created_at).limit(1)
             ).one_or_none()
-            return None if row is None else _cmrt_record(row)
+            return None if row is None else row_record(CmrtRecord, row)
 
     def get_cmrt(self, cmrt_id):
         rec = self._records([cmrt_id]).get(cmrt_id)
@@ -288,7 +287,7 @@ class SqlLibrary(SqlBase, LibraryRepository):
             total = s.scalar(select(func.count()).select_from(CmrtRow).where(*conds)) or 0
             q = select(CmrtRow).where(*conds).order_by(CmrtRow.created_at.desc(), CmrtRow.id)
             rows = s.scalars(q.limit(limit).offset(offset)).all()
-            return [_cmrt_record(r) for r in rows], int(total)
+            return [row_record(CmrtRecord, r) for r in rows], int(total)
 
     def cmrt_keys(self, family):
         kept = self._kept("_kept_keys", FAMILIES_KEPT)
@@ -361,23 +360,19 @@ class SqlLibrary(SqlBase, LibraryRepository):
             total = s.scalar(select(func.count()).select_from(BasisRow).where(*conds)) or 0
             q = select(BasisRow).where(*conds).order_by(BasisRow.created_at.desc(), BasisRow.id)
             rows = s.scalars(q.limit(limit).offset(offset)).all()
-            return [_basis_record(b) for b in rows], int(total)
+            return [row_record(BasisRecord, b) for b in rows], int(total)
 
     def get_basis(self, basis_id):
         with self._read() as s:
             row = s.get(BasisRow, basis_id)
             if row is None:
                 raise NotFound(f"basis {basis_id!a} not found")
-            return _basis_record(row)
+            return row_record(BasisRecord, row)
 
 
 
 def _verification_record(v: CmrtVerificationRow) -> VerificationRecord:
-    return VerificationRecord(
-        id=v.id, family=v.family, spec_hash=v.spec_hash, params_hash=v.params_hash,
-        source=v.source, members=list(v.members), outcome=dict(v.outcome),
-        created_at=v.created_at,
-    )  # fmt: skip
+    return row_record(VerificationRecord, v, members=list(v.members), outcome=dict(v.outcome))
 
 
 def _character_matches(stored: Mapping[str, Any], wanted: Mapping[str, Any]) -> bool:

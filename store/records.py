@@ -37,7 +37,6 @@ TRANSITIONS: Mapping[str, frozenset[str]] = {
 PENDING = "pending"
 DONE = "done"
 EVAL_FAILED = "failed"
-EVAL_STATUSES: tuple[str, ...] = (PENDING, DONE, EVAL_FAILED)
 
 
 @dataclass(frozen=True)

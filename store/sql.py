@@ -9,24 +9,19 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import fields
 from datetime import UTC, datetime
-from typing import Any
+from functools import cache
+from typing import Any, TypeVar
 
 from sqlalchemy import Connection, Engine, select
 from sqlalchemy.orm import Session
 
 from store.db import READ_ONLY_OPTION, session_scope
 from store.errors import NotFound
-from store.models import BasisRow, CmrtRow, EvaluationRow, GenerationRow, JobRow
-from store.records import (
-    BasisRecord,
-    CmrtRecord,
-    EvaluationRecord,
-    GenerationRecord,
-    JobRecord,
-    JobStart,
-)
+from store.models import GenerationRow, JobRow
+from store.records import GenerationRecord, JobRecord, JobStart
 
 Clock = Callable[[], datetime]
+R = TypeVar("R")
 
 
 def utcnow() -> datetime:
@@ -61,51 +56,26 @@ def _opt_num(value: Any, what: str) -> float | None:
     return None if value is None else _num(value, what)
 
 
+@cache
+def field_names(cls: type) -> tuple[str, ...]:
+    """A dataclass's field names, in order."""
+    return tuple(f.name for f in fields(cls))
+
+
+def row_record(cls: type[R], row: Any, **given: Any) -> R:
+    """A `store.records` record from an ORM row: each field is the row's attribute of the same
+    name, but for those `given` (converted, or not the row's)."""
+    return cls(**{n: getattr(row, n) for n in field_names(cls) if n not in given}, **given)
+
+
 def _job_record(j: JobRow) -> JobRecord:
-    return JobRecord(
-        id=j.id, name=j.name, family=j.family, task=j.task, spec=j.spec,
-        spec_hash=j.spec_hash, seed=j.seed,
-        workers=j.workers, status=j.status, stop_rule=j.stop_rule, error=j.error,
-        basis_id=j.basis_id, created_at=j.created_at, started_at=j.started_at,
-        finished_at=j.finished_at, best_objective=j.best_objective, best_params=j.best_params,
-        evaluations=j.evaluations, iterations=j.iterations,
-        cancel_requested=bool(j.cancel_requested), driver_owner=j.driver_owner,
-        lease_expires_at=j.lease_expires_at, heartbeat_at=j.heartbeat_at,
-        start=None if j.start is None else JobStart.from_json(j.start),
-    )  # fmt: skip
+    return row_record(JobRecord, j, cancel_requested=bool(j.cancel_requested),
+                      start=None if j.start is None else JobStart.from_json(j.start))
 
 
 def _generation_record(g: GenerationRow, with_state: bool) -> GenerationRecord:
-    return GenerationRecord(
-        job_id=g.job_id, iteration=g.iteration, best=g.best, median=g.median, worst=g.worst,
-        sigma=g.sigma, best_so_far=g.best_so_far, evaluations=g.evaluations,
-        wall_time=g.wall_time, candidates=g.candidates,
-        optimizer_state=g.optimizer_state if with_state else None, created_at=g.created_at,
-    )  # fmt: skip
-
-
-def _evaluation_record(e: EvaluationRow) -> EvaluationRecord:
-    return EvaluationRecord(
-        job_id=e.job_id, generation=e.generation, index=e.index, params=e.params,
-        status=e.status, objective=e.objective, fell=e.fell, attempts=e.attempts,
-        cpu_seconds=e.cpu_seconds, error=e.error, details=e.details,
-        created_at=e.created_at, updated_at=e.updated_at,
-    )  # fmt: skip
-
-
-_CMRT_RECORD_FIELDS = tuple(f.name for f in fields(CmrtRecord))
-
-
-def _cmrt_record(c: CmrtRow) -> CmrtRecord:
-    return CmrtRecord(**{name: getattr(c, name) for name in _CMRT_RECORD_FIELDS})
-
-
-def _basis_record(b: BasisRow) -> BasisRecord:
-    return BasisRecord(
-        id=b.id, family=b.family, k=b.k, mean=b.mean, components=b.components,
-        variance_explained=b.variance_explained, members=b.members, box=b.box,
-        created_at=b.created_at,
-    )  # fmt: skip
+    return row_record(GenerationRecord, g,
+                      optimizer_state=g.optimizer_state if with_state else None)
 
 
 def _exact_eps(v: float) -> float:

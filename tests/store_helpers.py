@@ -9,7 +9,7 @@ from sqlalchemy.orm import Session, undefer
 from store.errors import NotFound
 from store.models import BasisRow, CmrtRow, EvaluationRow, JobRow
 from store.records import BasisRecord, EvaluationRecord
-from store.sql import _basis_record, _evaluation_record
+from store.sql import row_record
 
 
 def get_evaluation(repo, job_id: str, generation: int, index: int) -> EvaluationRecord:
@@ -20,7 +20,7 @@ def get_evaluation(repo, job_id: str, generation: int, index: int) -> Evaluation
             EvaluationRow.index == index)).one_or_none()
         if ev is None:
             raise NotFound(f"evaluation ({job_id}, {generation}, {index}) not found")
-        return _evaluation_record(ev)
+        return row_record(EvaluationRecord, ev)
 
 
 def get_optimizer_state(repo, job_id: str) -> bytes | None:
@@ -47,4 +47,4 @@ def list_bases(repo, family: str | None = None) -> list[BasisRecord]:
     with Session(repo.engine) as s:
         rows = s.scalars(select(BasisRow).where(*conds)
                          .order_by(BasisRow.created_at.desc(), BasisRow.id)).all()
-        return [_basis_record(b) for b in rows]
+        return [row_record(BasisRecord, b) for b in rows]
