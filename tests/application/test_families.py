@@ -10,7 +10,6 @@ import pytest
 from application import families
 from application.errors import InvalidRequest
 from cmrt.settings import Settings
-from store import open_repository
 
 BASE: dict[str, Any] = {
     "name": "fam", "family": "famtest", "task": {"type": "quiet_stance"},
@@ -20,13 +19,6 @@ BASE: dict[str, Any] = {
 REQUEST: dict[str, Any] = {"spec": BASE, "param": "clip.decay",
                            "values": [1.0, 1.2, 1.4, 1.6, 1.8], "strategy": "continuation",
                            "from": "both", "leave_out": [1.4], "k": 2, "seed": 2}
-
-
-@pytest.fixture
-def repo(tmp_path):
-    repo = open_repository(f"sqlite:///{tmp_path}/families.db")
-    yield repo
-    repo.engine.dispose()
 
 
 def test_a_request_is_checked_whole_into_its_command():

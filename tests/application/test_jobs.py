@@ -13,19 +13,11 @@ from application.bases import build_library_basis
 from application.errors import InvalidRequest, Missing, RequestConflict
 from cmrt.defaults import DEFAULT_SEED
 from cmrt.settings import Settings
-from store import open_repository
 
 SPEC = {"name": "b", "family": "bend",
         "clip": {"preparation": 0.3, "duration": 0.3, "decay": 0.2},
         "task": {"type": "pose_change", "target": {"waist": -30}},
         "optimize": {"popsize": 4, "max_evaluations": 12, "min_evaluations": 0}}
-
-
-@pytest.fixture
-def repo(tmp_path):
-    repo = open_repository(f"sqlite:///{tmp_path}/jobs.db")
-    yield repo
-    repo.engine.dispose()
 
 
 def test_a_request_is_checked_whole_into_its_command():
