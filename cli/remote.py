@@ -19,16 +19,11 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from cmrt.cmdline import EXIT_BAD_INPUT, die
 from cmrt.defaults import DEFAULT_SEED
 
 EXIT_JOB_FAILED = 1
-EXIT_BAD_INPUT = 2
 EXIT_UNREACHABLE = 3
-
-
-def _err(msg: str, code: int) -> int:
-    print(f"cmrt: error: {msg}", file=sys.stderr)
-    return code
 
 
 def _client(args: argparse.Namespace) -> Any:
@@ -51,20 +46,20 @@ def _guard(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namesp
         try:
             return fn(args)
         except c.ServiceUnreachableError as err:
-            return _err(str(err), EXIT_UNREACHABLE)
+            return die(str(err), EXIT_UNREACHABLE)
         except (c.InvalidRequestError, c.UnauthorizedError, c.NotFoundError,
                 c.ConflictError) as err:
-            return _err(err.detail, EXIT_BAD_INPUT)
+            return die(err.detail, EXIT_BAD_INPUT)
         except c.ApiError as err:
-            return _err(str(err), EXIT_JOB_FAILED)
+            return die(str(err), EXIT_JOB_FAILED)
         except c.SpecFileError as err:
-            return _err(str(err), EXIT_BAD_INPUT)
+            return die(str(err), EXIT_BAD_INPUT)
         except c.ClientError as err:  # a bad --url, an answer that is not the API's
-            return _err(str(err), EXIT_BAD_INPUT)
+            return die(str(err), EXIT_BAD_INPUT)
         except ValidationError as err:  # CMRT_* settings that break a rule
             first = err.errors()[0]
             loc = ".".join(str(p) for p in first["loc"])
-            return _err(f"settings: CMRT_{loc.upper()}: {first['msg']}", EXIT_BAD_INPUT)
+            return die(f"settings: CMRT_{loc.upper()}: {first['msg']}", EXIT_BAD_INPUT)
 
     run.__name__ = fn.__name__
     run.__doc__ = fn.__doc__

@@ -50,8 +50,7 @@ CMRT_URL                  the service the client commands talk to     CMRT_PUBLI
 Invariant (checked): eval_time_limit < visibility_timeout, so Redis never re-delivers a message
 whose task is still legitimately running.
 
-The SQLite file's folder is created on demand by `store.db.make_engine` (or
-`Settings.ensure_data_dir()`), never at import.
+The SQLite file's folder is created on demand by `store.db.make_engine`, never at import.
 """
 
 from __future__ import annotations
@@ -225,10 +224,6 @@ class Settings(BaseSettings):
             host = f"[{host}]"
         return f"http://{host}:{self.api_port}"
 
-    def ensure_data_dir(self) -> Path:
-        """Create `data_dir` if needed and return it."""
-        self.data_dir.mkdir(parents=True, exist_ok=True)
-        return self.data_dir
 
 
 @lru_cache(maxsize=1)

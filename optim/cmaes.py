@@ -240,11 +240,6 @@ class CmaOptimizer:
         return np.array(self._s.es.mean, dtype=float)
 
     @property
-    def covariance(self) -> np.ndarray:
-        """The strategy's current covariance matrix C (a copy)."""
-        return np.array(self._s.es.C, dtype=float)
-
-    @property
     def cut_margin(self) -> float | None:
         """The margin `optim.rankcut` needs for an early stop of a generation's certain last
         (pycma's tolfun), None when this strategy's options allow no cut."""

@@ -408,31 +408,6 @@ class Physics:
             out += p.links
         return out
 
-    def energy(self) -> float:
-        """Kinetic plus gravitational potential energy (J) of every body, prop and link."""
-        e = 0.0
-        for b in self._all_bodies():
-            m = b.getMass()
-            mass, inertia = m.mass, m.I[2][2]
-            vx, vy, vz = b.getLinearVel()
-            w = b.getAngularVel()
-            e += 0.5 * mass * (vx * vx + vy * vy + vz * vz) + 0.5 * inertia * w[2] ** 2
-            e += mass * GRAVITY * b.getPosition()[1]
-        return e
-
-    def momentum(self) -> tuple[float, float, float]:
-        """Total linear momentum (kg m/s, x and y) and angular momentum about the world origin
-        (kg m^2/s, z) of every body, prop and link."""
-        px = py = lz = 0.0
-        for b in self._all_bodies():
-            m = b.getMass()
-            vx, vy, _ = b.getLinearVel()
-            x, y, _ = b.getPosition()
-            px += m.mass * vx
-            py += m.mass * vy
-            lz += m.mass * (x * vy - y * vx) + m.I[2][2] * b.getAngularVel()[2]
-        return px, py, lz
-
     def diverged(self, qd: np.ndarray | None = None) -> str | None:
         """Why the state is not physics any more (non-finite, too fast), else None. With `qd`
         (the character's velocities just read) the character is judged by |qd| (SI units:
@@ -645,11 +620,9 @@ class Physics:
     def contact_list(self) -> list[ContactForce]:
         """After a step: every contact with its force on the first body (feet and props)."""
         names = self.character.body_names
-        out = [ContactForce(FOOT_GROUND, names[b], None, (px, 0.0),
-                            tuple(j.getFeedback()[0][:2])) for j, b, px in self.contacts]
-        out += [ContactForce(kind, a, b, pos, tuple(j.getFeedback()[0][:2]))
-                for j, kind, a, b, pos in self.prop_contacts]
-        return out
+        return [ContactForce(FOOT_GROUND, names[b], None, (px, 0.0),
+                             tuple(j.getFeedback()[0][:2])) for j, b, px in self.contacts
+                ] + self.prop_contact_list()
 
     def prop_contact_list(self) -> list[ContactForce]:
         """`contact_list` without the feet's ground contacts (its tail): for a per-step

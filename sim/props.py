@@ -87,11 +87,3 @@ class PropDef:
         caps = ms * (0.4 * r * r + 0.25 * length * length + 3.0 / 8.0 * r * length)
         return cyl + caps
 
-    @property
-    def extent(self) -> float:
-        """Half the largest dimension (m): a bound on the distance of any point from the CoM."""
-        if self.shape == "box":
-            return 0.5 * math.hypot(*self.size)
-        if self.shape in ("sphere", "disc"):
-            return self.size[0]
-        return self.size[0] + 0.5 * self.size[1]

@@ -32,7 +32,7 @@ class Recorder:
         d = dataclasses.asdict(stats)
         d.pop("worst")  # a lower bound when the last was cut: the one figure that may differ
         self.rows.append({"stats": d, "mean": opt.mean.tobytes(), "sigma": opt.sigma,
-                          "C": opt.covariance.tobytes(),
+                          "C": np.array(opt._s.es.C, dtype=float).tobytes(),
                           "x": [np.asarray(c).tobytes() for c in candidates]})
 
 

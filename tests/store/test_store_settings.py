@@ -31,7 +31,6 @@ def test_defaults_embedded_mode(tmp_path: Path) -> None:
     assert (s.workers, s.max_attempts) == (2, 3)
     assert s.eval_time_limit > 0 and s.max_body_bytes > 0
     assert not (tmp_path / "cmrt-data").exists()  # created on demand only
-    assert s.ensure_data_dir().is_dir()
 
 
 def test_environment_variables(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
