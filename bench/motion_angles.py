@@ -12,17 +12,14 @@ Prints the largest difference (degrees) between each pair of curves per joint.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from sim import load_spec  # noqa: E402
-from sim.export import sample_motion  # noqa: E402
-from sim.motion_import import ImportOptions, import_motion  # noqa: E402
-from sim.rollout import Rollout  # noqa: E402
+from sim import load_spec
+from sim.export import sample_motion
+from sim.motion_import import ImportOptions, import_motion
+from sim.rollout import Rollout
 
 W, H, PAD = 900, 210, 50  # px: one panel
 COLOURS = {"clip (no filter)": "#bbbbbb", "reference": "#1f77b4", "simulated": "#d62728"}

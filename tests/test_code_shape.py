@@ -76,3 +76,11 @@ def test_one_cache_implementation():
     found = sorted(str(path.relative_to(ROOT)) for package in PACKAGES[:-1]
                    for path in (ROOT / package).rglob("*.py") if "move_to_end" in path.read_text())
     assert found == ["cmrt/lru.py"]
+
+
+def test_benchmarks_import_the_product_as_installed():
+    """bench/ is an installed package beside the product: no script edits `sys.path` to find
+    it (a script would then run code other than what the interpreter has installed)."""
+    found = sorted(str(path.relative_to(ROOT)) for path in (ROOT / "bench").rglob("*.py")
+                   if "sys.path" in path.read_text())
+    assert found == []
