@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Query, Request
@@ -115,7 +115,7 @@ def job_best(job_id: str, request: Request, repo: RepoDep) -> dict[str, Any]:
     return {"job_id": job_id, "status": job.status, "iterations": job.iterations,
             "best_objective": job.best_objective, "params": job.best_params,
             **(asdict(best) if best is not None else dict.fromkeys(
-                ("knot_times", "values", "vertical_values", "curve"))),
+                f.name for f in fields(jobs.BestCurve))),
             "cmrt_id": job_cmrt_id(repo, job)}
 
 
